@@ -1,0 +1,22 @@
+"""fastrl's branch-free JAX rigid-body engine in generalized coordinates, faithful to MuJoCo."""
+
+from fastrl.physics.forward import DIVERGENCE_BOUND, euler, forward, integrate_pos, rk4, step
+from fastrl.physics.io import UnsupportedFeatureError, load_mjcf, make_data, model_from_mujoco
+from fastrl.physics.types import Data, Integrator, JointType, Model
+
+__all__ = [
+    "DIVERGENCE_BOUND",
+    "Data",
+    "Integrator",
+    "JointType",
+    "Model",
+    "UnsupportedFeatureError",
+    "euler",
+    "forward",
+    "integrate_pos",
+    "load_mjcf",
+    "make_data",
+    "model_from_mujoco",
+    "rk4",
+    "step",
+]

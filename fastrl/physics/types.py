@@ -1,0 +1,203 @@
+"""``Model`` and ``Data``: the two pytrees every physics stage reads and writes.
+
+Names and layouts follow MuJoCo's ``mjModel``/``mjData`` so the reference can be grepped. In
+``Model``, ``np.ndarray`` and ``int`` fields are static topology (they decide the traced program);
+``jax.Array`` fields are physical parameters, traced, so they can be randomised per environment under
+``vmap`` and differentiated.
+"""
+
+from __future__ import annotations
+
+import enum
+
+import jax
+import numpy as np
+
+from fastrl.physics.dataclass import pytree_dataclass
+
+
+class JointType(enum.IntEnum):
+    """MuJoCo's ``mjtJoint``."""
+
+    FREE = 0
+    BALL = 1
+    SLIDE = 2
+    HINGE = 3
+
+
+class Integrator(enum.IntEnum):
+    """MuJoCo's ``mjtIntegrator`` values that fastrl implements."""
+
+    EULER = 0
+    RK4 = 1
+
+
+JOINT_NQ = {JointType.FREE: 7, JointType.BALL: 4, JointType.SLIDE: 1, JointType.HINGE: 1}
+JOINT_NV = {JointType.FREE: 6, JointType.BALL: 3, JointType.SLIDE: 1, JointType.HINGE: 1}
+
+
+@pytree_dataclass
+class Model:
+    """A compiled scene. Shapes: nbody bodies (body 0 is the world), njnt joints, nv dofs, nu actuators.
+
+    Static topology (numpy / int):
+      nq, nv, nu, nbody, njnt, ngeom, nsite    sizes
+      body_parentid, body_rootid               (nbody,) parent; top-level ancestor
+      body_jntnum, body_jntadr                 (nbody,) joints of each body
+      body_dofnum, body_dofadr                 (nbody,) dofs of each body
+      jnt_type, jnt_qposadr, jnt_dofadr        (njnt,)  JointType; addresses in qpos, qvel
+      jnt_bodyid, jnt_limited                  (njnt,)
+      dof_bodyid, dof_jntid, dof_parentid      (nv,)    dof_parentid is -1 at a tree root
+      geom_bodyid, geom_type                   (ngeom,)
+      geom_contype, geom_conaffinity           (ngeom,)
+      site_bodyid                              (nsite,)
+      actuator_trnid                           (nu,)    the joint each actuator drives
+      actuator_gaintype, actuator_biastype     (nu,)    0 fixed/none, 1 affine
+      actuator_ctrllimited, forcelimited       (nu,)
+      jnt_actfrclimited                        (njnt,)
+      integrator                               Integrator
+      disableflags                             MuJoCo's mjtDisableBit mask
+      body_names, jnt_names, geom_names, site_names, actuator_names   tuples of str
+    Traced parameters (jax.Array):
+      timestep ()   gravity (3,)
+      body_pos (nbody,3), body_quat (nbody,4), body_ipos (nbody,3), body_iquat (nbody,4)
+      body_mass (nbody,), body_inertia (nbody,3)
+      jnt_pos (njnt,3), jnt_axis (njnt,3), jnt_stiffness (njnt,), jnt_range (njnt,2)
+      jnt_actfrcrange (njnt,2)
+      qpos0 (nq,), qpos_spring (nq,)
+      dof_armature (nv,), dof_damping (nv,)
+      geom_pos (ngeom,3), geom_quat (ngeom,4), geom_size (ngeom,3), geom_friction (ngeom,3)
+      site_pos (nsite,3), site_quat (nsite,4)
+      actuator_gear (nu,6), actuator_ctrlrange (nu,2), actuator_forcerange (nu,2)
+      actuator_gainprm (nu,10), actuator_biasprm (nu,10)
+    """
+
+    nq: int
+    nv: int
+    nu: int
+    nbody: int
+    njnt: int
+    ngeom: int
+    nsite: int
+    body_parentid: np.ndarray
+    body_rootid: np.ndarray
+    body_jntnum: np.ndarray
+    body_jntadr: np.ndarray
+    body_dofnum: np.ndarray
+    body_dofadr: np.ndarray
+    jnt_type: np.ndarray
+    jnt_qposadr: np.ndarray
+    jnt_dofadr: np.ndarray
+    jnt_bodyid: np.ndarray
+    jnt_limited: np.ndarray
+    dof_bodyid: np.ndarray
+    dof_jntid: np.ndarray
+    dof_parentid: np.ndarray
+    geom_bodyid: np.ndarray
+    geom_type: np.ndarray
+    geom_contype: np.ndarray
+    geom_conaffinity: np.ndarray
+    site_bodyid: np.ndarray
+    actuator_trnid: np.ndarray
+    actuator_gaintype: np.ndarray
+    actuator_biastype: np.ndarray
+    actuator_ctrllimited: np.ndarray
+    actuator_forcelimited: np.ndarray
+    jnt_actfrclimited: np.ndarray
+    integrator: int
+    disableflags: int
+    body_names: tuple
+    jnt_names: tuple
+    geom_names: tuple
+    site_names: tuple
+    actuator_names: tuple
+    timestep: jax.Array
+    gravity: jax.Array
+    body_pos: jax.Array
+    body_quat: jax.Array
+    body_ipos: jax.Array
+    body_iquat: jax.Array
+    body_mass: jax.Array
+    body_inertia: jax.Array
+    jnt_pos: jax.Array
+    jnt_axis: jax.Array
+    jnt_stiffness: jax.Array
+    jnt_range: jax.Array
+    jnt_actfrcrange: jax.Array
+    qpos0: jax.Array
+    qpos_spring: jax.Array
+    dof_armature: jax.Array
+    dof_damping: jax.Array
+    geom_pos: jax.Array
+    geom_quat: jax.Array
+    geom_size: jax.Array
+    geom_friction: jax.Array
+    site_pos: jax.Array
+    site_quat: jax.Array
+    actuator_gear: jax.Array
+    actuator_ctrlrange: jax.Array
+    actuator_forcerange: jax.Array
+    actuator_gainprm: jax.Array
+    actuator_biasprm: jax.Array
+
+    def summary(self) -> str:
+        """A one-paragraph description of the scene's size."""
+        types = [JointType(t).name.lower() for t in self.jnt_type]
+        counts = {t: types.count(t) for t in dict.fromkeys(types)}
+        joints = ", ".join(f"{n} {t}" for t, n in counts.items()) or "none"
+        return (
+            f"bodies {self.nbody - 1} (+world), joints {self.njnt} ({joints}), nq {self.nq}, "
+            f"nv {self.nv}, actuators {self.nu}, geoms {self.ngeom}, sites {self.nsite}, "
+            f"integrator {Integrator(self.integrator).name}, timestep {float(self.timestep):g}"
+        )
+
+
+@pytree_dataclass
+class Data:
+    """Simulation state and the quantities the pipeline derives from it (MuJoCo's names).
+
+    State:        qpos (nq,)  qvel (nv,)  ctrl (nu,)  time ()  qfrc_applied (nv,)
+    Kinematics:   xpos (nbody,3)  xquat (nbody,4)  xmat (nbody,3,3)  xipos (nbody,3)
+                  ximat (nbody,3,3)  xanchor (njnt,3)  xaxis (njnt,3)
+                  geom_xpos (ngeom,3)  geom_xmat (ngeom,3,3)  site_xpos (nsite,3)  site_xmat (nsite,3,3)
+    Com-based:    subtree_com (nbody,3)  cinert (nbody,10)  cdof (nv,6)  cvel (nbody,6)
+                  cdof_dot (nv,6)
+    Dynamics:     qM (nv,nv)  qfrc_bias (nv,)  qfrc_spring (nv,)  qfrc_damper (nv,)
+                  qfrc_passive (nv,)  actuator_length (nu,)  actuator_velocity (nu,)
+                  actuator_force (nu,)  qfrc_actuator (nv,)  qfrc_smooth (nv,)  qacc (nv,)
+    Health:       diverged ()  True once the state has been non-finite or beyond bounds
+    """
+
+    qpos: jax.Array
+    qvel: jax.Array
+    ctrl: jax.Array
+    time: jax.Array
+    qfrc_applied: jax.Array
+    xpos: jax.Array
+    xquat: jax.Array
+    xmat: jax.Array
+    xipos: jax.Array
+    ximat: jax.Array
+    xanchor: jax.Array
+    xaxis: jax.Array
+    geom_xpos: jax.Array
+    geom_xmat: jax.Array
+    site_xpos: jax.Array
+    site_xmat: jax.Array
+    subtree_com: jax.Array
+    cinert: jax.Array
+    cdof: jax.Array
+    cvel: jax.Array
+    cdof_dot: jax.Array
+    qM: jax.Array
+    qfrc_bias: jax.Array
+    qfrc_spring: jax.Array
+    qfrc_damper: jax.Array
+    qfrc_passive: jax.Array
+    actuator_length: jax.Array
+    actuator_velocity: jax.Array
+    actuator_force: jax.Array
+    qfrc_actuator: jax.Array
+    qfrc_smooth: jax.Array
+    qacc: jax.Array
+    diverged: jax.Array
