@@ -54,9 +54,9 @@ def pytree_dataclass(cls: type[_T]) -> type[_T]:
 
     def unflatten(aux, children):
         obj = object.__new__(cls)
-        for n, v in zip(leaves, children):
+        for n, v in zip(leaves, children, strict=True):
             object.__setattr__(obj, n, v)
-        for n, v in zip(statics, aux):
+        for n, v in zip(statics, aux, strict=True):
             object.__setattr__(obj, n, v.value)
         return obj
 

@@ -132,7 +132,7 @@ def candidate_geom_pairs(m: mujoco.MjModel) -> list[tuple[int, int]]:
             if (min(b1, b2), max(b1, b2)) in excluded or (b1 << 16 | b2) in excluded:
                 continue
             pairs.append((g1, g2))
-    pairs += [(int(a), int(b)) for a, b in zip(m.pair_geom1, m.pair_geom2)]
+    pairs += [(int(a), int(b)) for a, b in zip(m.pair_geom1, m.pair_geom2, strict=True)]
     return pairs
 
 
