@@ -1,0 +1,39 @@
+"""Shared fixtures: the hand-written MJCF test models and a float64 switch."""
+
+from __future__ import annotations
+
+import pathlib
+
+import jax
+import mujoco
+import numpy as np
+import pytest
+
+ASSETS = pathlib.Path(__file__).parent / "assets"
+MODELS = sorted(p.stem for p in ASSETS.glob("*.xml"))
+
+
+@pytest.fixture
+def x64():
+    """Runs the test with ``jax_enable_x64`` on, restoring the previous setting after."""
+    previous = jax.config.jax_enable_x64
+    jax.config.update("jax_enable_x64", True)
+    yield
+    jax.config.update("jax_enable_x64", previous)
+
+
+def asset(name: str) -> str:
+    return str(ASSETS / f"{name}.xml")
+
+
+def random_state(mj: mujoco.MjModel, seed: int, qpos_scale=0.3, qvel_scale=1.0):
+    """A random (qpos, qvel, ctrl) with unit quaternions, as numpy float64."""
+    rng = np.random.default_rng(seed)
+    qpos = mj.qpos0 + qpos_scale * rng.standard_normal(mj.nq)
+    for j in range(mj.njnt):
+        if mj.jnt_type[j] in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL):
+            a = mj.jnt_qposadr[j] + (3 if mj.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE else 0)
+            qpos[a : a + 4] /= np.linalg.norm(qpos[a : a + 4])
+    qvel = qvel_scale * rng.standard_normal(mj.nv)
+    ctrl = rng.uniform(-1, 1, mj.nu)
+    return qpos, qvel, ctrl

@@ -1,0 +1,81 @@
+"""Loading MJCF: the public API, the summary, and clear errors for what is not simulated."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fastrl import physics
+from tests.conftest import asset
+
+BASE = """<mujoco><worldbody>{body}</worldbody>{extra}</mujoco>"""
+HINGE_BODY = (
+    '<body name="b"><joint name="j" type="hinge"{joint}/>'
+    '<geom size="0.1" contype="0" conaffinity="0"/></body>'
+)
+
+
+def _xml(joint="", extra="", body=None):
+    return BASE.format(body=body or HINGE_BODY.format(joint=joint), extra=extra)
+
+
+def test_public_api_shapes():
+    m = physics.load_mjcf(asset("ant_air"))
+    d = physics.make_data(m)
+    assert (m.nq, m.nv, m.nu) == (15, 14, 8)
+    d = physics.step(m, d, np.zeros(m.nu))
+    assert d.qpos.shape == (15,) and d.qvel.shape == (14,)
+    assert float(d.time) == pytest.approx(0.01)
+    assert "nv 14" in m.summary() and "8" in m.summary()
+
+
+@pytest.mark.parametrize(
+    "xml, words",
+    [
+        (_xml(joint=' range="-1 1" limited="true"'), ["joint limits", "'j'"]),
+        (_xml(extra='<tendon><fixed name="t"><joint joint="j" coef="1"/></fixed></tendon>'), ["tendons"]),
+        (
+            _xml(extra='<actuator><general name="mus" joint="j" dyntype="filter" dynprm="0.1"/></actuator>'),
+            ["'mus'", "activation dynamics"],
+        ),
+        (
+            BASE.format(
+                body='<geom type="plane" size="1 1 1"/><body><freejoint/><geom size="0.1"/></body>', extra=""
+            ),
+            ["contacts", "1 geom pairs"],
+        ),
+        (_xml(extra='<option viscosity="0.1"/>'), ["fluid"]),
+    ],
+)
+def test_unsupported_features_raise_clear_errors(xml, words):
+    with pytest.raises(physics.UnsupportedFeatureError) as err:
+        physics.load_mjcf(xml)
+    for w in words:
+        assert w in str(err.value)
+
+
+def test_disabling_contacts_and_limits_loads():
+    xml = _xml(joint=' range="-1 1" limited="true"', extra='<option><flag limit="disable"/></option>')
+    assert physics.load_mjcf(xml).njnt == 1
+
+
+def test_bad_inputs():
+    with pytest.raises(FileNotFoundError):
+        physics.load_mjcf("no/such/model.xml")
+    m = physics.load_mjcf(asset("pendulum"))
+    with pytest.raises(ValueError, match="qpos has shape"):
+        physics.make_data(m, qpos=np.zeros(3))
+    with pytest.raises(ValueError, match="integrator"):
+        physics.load_mjcf(asset("pendulum"), integrator="verlet")
+
+
+def test_model_is_a_pytree_with_static_topology():
+    import jax
+
+    m = physics.load_mjcf(asset("double_pendulum"))
+    leaves = jax.tree.leaves(m)
+    assert all(isinstance(x, jax.Array) for x in leaves)
+    # Static fields survive a round trip through flatten/unflatten unchanged.
+    m2 = jax.tree.unflatten(jax.tree.structure(m), leaves)
+    np.testing.assert_array_equal(m2.jnt_type, m.jnt_type)
+    assert hash(jax.tree.structure(m)) == hash(jax.tree.structure(m2))
