@@ -1,6 +1,14 @@
 """fastrl's branch-free JAX rigid-body engine in generalized coordinates, faithful to MuJoCo."""
 
-from fastrl.physics.forward import DIVERGENCE_BOUND, euler, forward, integrate_pos, rk4, step
+from fastrl.physics.forward import (
+    DIVERGENCE_BOUND,
+    euler,
+    forward,
+    forward_forces,
+    integrate_pos,
+    rk4,
+    step,
+)
 from fastrl.physics.io import UnsupportedFeatureError, load_mjcf, make_data, model_from_mujoco
 from fastrl.physics.types import Data, Integrator, JointType, Model
 
@@ -13,6 +21,7 @@ __all__ = [
     "UnsupportedFeatureError",
     "euler",
     "forward",
+    "forward_forces",
     "integrate_pos",
     "load_mjcf",
     "make_data",

@@ -25,8 +25,8 @@ _DSBL = mujoco.mjtDisableBit
 DIVERGENCE_BOUND = 1e10
 
 
-def forward(m: Model, d: Data) -> Data:
-    """Computes every derived quantity and the acceleration ``qacc`` of the current state."""
+def forward_forces(m: Model, d: Data) -> Data:
+    """Every derived quantity up to the total smooth force ``qfrc_smooth`` (no solve)."""
     d = smooth.kinematics(m, d)
     d = smooth.com_pos(m, d)
     d = smooth.crb(m, d)
@@ -34,9 +34,17 @@ def forward(m: Model, d: Data) -> Data:
     d = smooth.rne(m, d)
     d = passive(m, d)
     d = actuation(m, d)
-    qfrc_smooth = d.qfrc_passive - d.qfrc_bias + d.qfrc_actuator + d.qfrc_applied
-    qacc = smooth.solve_m(m, smooth.factor_m(m, d.qM), qfrc_smooth)
-    return d.replace(qfrc_smooth=qfrc_smooth, qacc=qacc)
+    return d.replace(qfrc_smooth=d.qfrc_passive - d.qfrc_bias + d.qfrc_actuator + d.qfrc_applied)
+
+
+def forward(m: Model, d: Data) -> Data:
+    """Computes every derived quantity and the acceleration ``qacc`` of the current state."""
+    d = forward_forces(m, d)
+    return d.replace(qacc=smooth.solve(m, d.qM, d.qfrc_smooth))
+
+
+def _implicit_damping(m: Model) -> bool:
+    return not m.disableflags & (_DSBL.mjDSBL_EULERDAMP | _DSBL.mjDSBL_DAMPER)
 
 
 def integrate_pos(m: Model, qpos: jax.Array, qvel: jax.Array, dt: jax.Array) -> jax.Array:
@@ -74,19 +82,22 @@ def _check(d: Data) -> jax.Array:
 
 
 def euler(m: Model, d: Data) -> Data:
-    """Semi-implicit Euler after ``forward``: velocity first, then position with the new velocity.
+    """Semi-implicit Euler: velocity first, then position with the new velocity.
 
-    Joint damping is integrated implicitly, ``qacc = (M + h B)^-1 qfrc_smooth``, as MuJoCo does
-    unless ``eulerdamp`` is disabled: it keeps stiffly damped joints stable at large timesteps.
+    Expects ``forward_forces`` (and, without implicit damping, ``forward``) to have run. Joint
+    damping is integrated implicitly, ``qacc = (M + h B)^-1 qfrc_smooth``, as MuJoCo does unless
+    ``eulerdamp`` is disabled: it keeps stiffly damped joints stable at large timesteps. That
+    acceleration is the one left in ``qacc`` (MuJoCo keeps the undamped one there; solving once
+    instead of twice saves a factorisation per step).
     """
     h = m.timestep
     qacc = d.qacc
-    if not m.disableflags & (_DSBL.mjDSBL_EULERDAMP | _DSBL.mjDSBL_DAMPER):
+    if _implicit_damping(m):
         damped = d.qM + jnp.diag(h * m.dof_damping)
-        qacc = smooth.solve_m(m, smooth.factor_m(m, damped), d.qfrc_smooth)
+        qacc = smooth.solve(m, damped, d.qfrc_smooth)
     qvel = d.qvel + h * qacc
     qpos = integrate_pos(m, d.qpos, qvel, h)
-    return d.replace(qpos=qpos, qvel=qvel, time=d.time + h)
+    return d.replace(qpos=qpos, qvel=qvel, qacc=qacc, time=d.time + h)
 
 
 def rk4(m: Model, d: Data) -> Data:
@@ -127,6 +138,10 @@ def step(m: Model, d: Data, ctrl: jax.Array | None = None) -> Data:
     """
     if ctrl is not None:
         d = d.replace(ctrl=jnp.asarray(ctrl, d.qvel.dtype))
-    d = forward(m, d)
-    d = rk4(m, d) if m.integrator == Integrator.RK4 else euler(m, d)
+    if m.integrator == Integrator.RK4:
+        d = rk4(m, forward(m, d))
+    elif _implicit_damping(m):
+        d = euler(m, forward_forces(m, d))  # euler solves with M + hB itself
+    else:
+        d = euler(m, forward(m, d))
     return d.replace(diverged=_check(d))
