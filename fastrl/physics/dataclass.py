@@ -1,8 +1,9 @@
 """Frozen dataclasses that are JAX pytrees, with static fields decided by annotation.
 
-A field annotated ``jax.Array`` is a pytree leaf: traced under ``jit``, batched under ``vmap``,
-differentiable. Every other field (``np.ndarray``, ``int``, ``tuple``, ``str``) is static: it lives in
-the pytree's treedef, so the program is specialised on it at trace time. This is how ``Model``
+A field annotated ``np.ndarray``, ``int``, ``float``, ``bool``, ``str`` or ``tuple`` is static: it
+lives in the pytree's treedef, so the program is specialised on it at trace time. Every other
+field (``jax.Array``, or a nested pytree) is a child: traced under ``jit``, batched under
+``vmap``, differentiable. This is how ``Model``
 keeps topology (joint types, parent indices) static and physical parameters traced.
 """
 
@@ -36,8 +37,14 @@ class _Frozen:
         return isinstance(other, _Frozen) and self._key == other._key
 
 
+_STATIC = (np.ndarray, int, float, bool, str, tuple)
+_STATIC_NAMES = {"np.ndarray", "numpy.ndarray", "int", "float", "bool", "str", "tuple"}
+
+
 def _is_traced(annotation) -> bool:
-    return annotation in (jax.Array, "jax.Array")
+    if isinstance(annotation, str):
+        return annotation.split("[")[0] not in _STATIC_NAMES
+    return annotation not in _STATIC
 
 
 def pytree_dataclass(cls: type[_T]) -> type[_T]:
