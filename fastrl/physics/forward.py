@@ -15,8 +15,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import math, smooth
+from fastrl.physics import constraint, math, smooth, solver
 from fastrl.physics.actuation import actuation
+from fastrl.physics.collision_driver import collision
 from fastrl.physics.passive import passive
 from fastrl.physics.types import Data, Integrator, JointType, Model
 
@@ -37,10 +38,24 @@ def forward_forces(m: Model, d: Data) -> Data:
     return d.replace(qfrc_smooth=d.qfrc_passive - d.qfrc_bias + d.qfrc_actuator + d.qfrc_applied)
 
 
+def has_constraints(m: Model) -> bool:
+    """Whether the model has any constraint rows; without, no collision or solver is traced."""
+    return constraint.sizes(m)[1] > 0
+
+
 def forward(m: Model, d: Data) -> Data:
-    """Computes every derived quantity and the acceleration ``qacc`` of the current state."""
+    """Computes every derived quantity and the acceleration ``qacc`` of the current state.
+
+    Smooth dynamics, then (if the model has any) collisions, constraint rows and the solver.
+    """
     d = forward_forces(m, d)
-    return d.replace(qacc=smooth.solve(m, d.qM, d.qfrc_smooth))
+    qacc_smooth = smooth.solve(m, d.qM, d.qfrc_smooth)
+    d = d.replace(qacc_smooth=qacc_smooth, qacc=qacc_smooth)
+    if not has_constraints(m):
+        return d
+    d = collision(m, d)
+    d = constraint.make_constraint(m, d)
+    return solver.solve(m, d)
 
 
 def _implicit_damping(m: Model) -> bool:
@@ -94,7 +109,7 @@ def euler(m: Model, d: Data) -> Data:
     qacc = d.qacc
     if _implicit_damping(m):
         damped = d.qM + jnp.diag(h * m.dof_damping)
-        qacc = smooth.solve(m, damped, d.qfrc_smooth)
+        qacc = smooth.solve(m, damped, d.qfrc_smooth + d.qfrc_constraint)
     qvel = d.qvel + h * qacc
     qpos = integrate_pos(m, d.qpos, qvel, h)
     return d.replace(qpos=qpos, qvel=qvel, qacc=qacc, time=d.time + h)
@@ -140,8 +155,8 @@ def step(m: Model, d: Data, ctrl: jax.Array | None = None) -> Data:
         d = d.replace(ctrl=jnp.asarray(ctrl, d.qvel.dtype))
     if m.integrator == Integrator.RK4:
         d = rk4(m, forward(m, d))
-    elif _implicit_damping(m):
+    elif _implicit_damping(m) and not has_constraints(m):
         d = euler(m, forward_forces(m, d))  # euler solves with M + hB itself
     else:
         d = euler(m, forward(m, d))
-    return d.replace(diverged=_check(d))
+    return d.replace(diverged=_check(d), qacc_warmstart=d.qacc)

@@ -55,6 +55,8 @@ def _check_supported(m: mujoco.MjModel) -> None:
     ]:
         if count:
             problems.append(f"{what} ({count} in the model)")
+    if contacts_enabled(m) and np.any((m.geom_condim != 1) & (m.geom_condim != 3)):
+        problems.append("contact condim other than 1 or 3 (torsional/rolling friction)")
     if m.opt.density > 0 or m.opt.viscosity > 0:
         problems.append("fluid forces (option density/viscosity > 0)")
     if _nonzero(m, "body_gravcomp"):
@@ -86,23 +88,34 @@ def _check_supported(m: mujoco.MjModel) -> None:
             problems.append(f"actuator {name!r}: gain {mujoco.mjtGain(m.actuator_gaintype[i]).name}")
         if m.actuator_biastype[i] > int(mujoco.mjtBias.mjBIAS_AFFINE):
             problems.append(f"actuator {name!r}: bias {mujoco.mjtBias(m.actuator_biastype[i]).name}")
-    limited = m.jnt_limited.astype(bool)
+    limited = m.jnt_limited.astype(bool) & (m.jnt_type <= JointType.BALL)
     if limited.any() and not flags & (_DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT):
-        problems.append(
-            f"joint limits ({_first(m, limited, obj.mjOBJ_JOINT)}); the constraint solver is not "
-            "built yet: remove the range or add <flag limit='disable'/>"
-        )
-    pairs = candidate_geom_pairs(m)
-    if pairs and not flags & (_DSBL.mjDSBL_CONTACT | _DSBL.mjDSBL_CONSTRAINT):
-        g1, g2 = pairs[0]
-        n1 = mujoco.mj_id2name(m, obj.mjOBJ_GEOM, g1) or g1
-        n2 = mujoco.mj_id2name(m, obj.mjOBJ_GEOM, g2) or g2
-        problems.append(
-            f"contacts ({len(pairs)} geom pairs can touch, e.g. {n1!r}-{n2!r}); collision is not "
-            "built yet: set contype/conaffinity to 0 or add <flag contact='disable'/>"
-        )
+        problems.append(f"limits on a free/ball joint ({_first(m, limited, obj.mjOBJ_JOINT)})")
+    if contacts_enabled(m):
+        from fastrl.physics.collision_driver import PRIMITIVES
+
+        for g1, g2 in candidate_geom_pairs(m):
+            key = (int(m.geom_type[g1]), int(m.geom_type[g2]))
+            if key not in PRIMITIVES:
+                n1 = mujoco.mj_id2name(m, obj.mjOBJ_GEOM, g1) or g1
+                n2 = mujoco.mj_id2name(m, obj.mjOBJ_GEOM, g2) or g2
+                t1, t2 = (mujoco.mjtGeom(t).name[7:].lower() for t in key)
+                problems.append(f"collision {t1}-{t2} (geoms {n1!r}, {n2!r}) is not implemented")
+                break
+    if m.opt.cone != mujoco.mjtCone.mjCONE_PYRAMIDAL and contacts_enabled(m):
+        problems.append("the elliptic friction cone (use cone='pyramidal')")
+    if m.npair:
+        problems.append("explicit <contact><pair> elements")
     if problems:
         raise UnsupportedFeatureError("fastrl cannot simulate this model yet: " + "; ".join(problems))
+
+
+def contacts_enabled(m: mujoco.MjModel) -> bool:
+    return not m.opt.disableflags & (_DSBL.mjDSBL_CONTACT | _DSBL.mjDSBL_CONSTRAINT)
+
+
+def limits_enabled(m: mujoco.MjModel) -> bool:
+    return not m.opt.disableflags & (_DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT)
 
 
 def candidate_geom_pairs(m: mujoco.MjModel) -> list[tuple[int, int]]:
@@ -132,12 +145,57 @@ def candidate_geom_pairs(m: mujoco.MjModel) -> list[tuple[int, int]]:
             if (min(b1, b2), max(b1, b2)) in excluded or (b1 << 16 | b2) in excluded:
                 continue
             pairs.append((g1, g2))
-    pairs += [(int(a), int(b)) for a, b in zip(m.pair_geom1, m.pair_geom2, strict=True)]
-    return pairs
+    # MuJoCo's collision table is indexed with the lower geom type first.
+    return [(a, b) if m.geom_type[a] <= m.geom_type[b] else (b, a) for a, b in pairs]
 
 
-def model_from_mujoco(m: mujoco.MjModel, integrator: str | None = None) -> Model:
+def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[str, np.ndarray]:
+    """Contact parameters of each pair, mixed from its two geoms as MuJoCo mixes them.
+
+    condim and friction take the maximum (friction per component, expanded to MuJoCo's
+    5-vector: tangential, tangential, torsional, rolling, rolling, each at least 1e-5); margins
+    and gaps add up (MuJoCo >= 4.0); solref and solimp are a weighted mean with weights from
+    ``solmix``; a geom with higher ``priority`` supplies condim, friction, solref and solimp.
+    """
+    n = len(pairs)
+    out = {
+        "condim": np.zeros(n, np.int32), "friction": np.zeros((n, 5)), "solref": np.zeros((n, 2)),
+        "solimp": np.zeros((n, 5)), "margin": np.zeros(n), "gap": np.zeros(n),
+    }  # fmt: skip
+    for k, (g1, g2) in enumerate(pairs):
+        p1, p2 = m.geom_priority[g1], m.geom_priority[g2]
+        if p1 != p2:
+            win = g1 if p1 > p2 else g2
+            condim, fric = m.geom_condim[win], m.geom_friction[win]
+            solref, solimp = m.geom_solref[win], m.geom_solimp[win]
+        else:
+            condim = max(m.geom_condim[g1], m.geom_condim[g2])
+            fric = np.maximum(m.geom_friction[g1], m.geom_friction[g2])
+            s1, s2 = m.geom_solmix[g1], m.geom_solmix[g2]
+            small1, small2 = s1 < mujoco.mjMINVAL, s2 < mujoco.mjMINVAL
+            mix = 0.5 if small1 and small2 else 0.0 if small1 else 1.0 if small2 else s1 / (s1 + s2)
+            if m.geom_solref[g1][0] > 0 and m.geom_solref[g2][0] > 0:
+                solref = mix * m.geom_solref[g1] + (1 - mix) * m.geom_solref[g2]
+            else:  # direct (negative) solref: the stiffer of the two
+                solref = np.minimum(m.geom_solref[g1], m.geom_solref[g2])
+            solimp = mix * m.geom_solimp[g1] + (1 - mix) * m.geom_solimp[g2]
+        out["condim"][k] = condim
+        out["friction"][k] = np.maximum([fric[0], fric[0], fric[1], fric[2], fric[2]], mujoco.mjMINMU)
+        out["solref"][k], out["solimp"][k] = solref, solimp
+        out["margin"][k] = m.geom_margin[g1] + m.geom_margin[g2]
+        out["gap"][k] = m.geom_gap[g1] + m.geom_gap[g2]
+    return out
+
+
+DEFAULT_SOLVER_ITERATIONS = 4
+
+
+def model_from_mujoco(
+    m: mujoco.MjModel, integrator: str | None = None, solver_iterations: int = DEFAULT_SOLVER_ITERATIONS
+) -> Model:
     """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
+    if solver_iterations < 1:
+        raise ValueError(f"solver_iterations={solver_iterations}; it must be at least 1")
     _check_supported(m)
     if integrator is not None:
         if integrator not in _INTEGRATORS:
@@ -151,6 +209,11 @@ def model_from_mujoco(m: mujoco.MjModel, integrator: str | None = None) -> Model
             f"integrator {name} is not implemented; pass integrator='euler' or 'rk4' to load_mjcf"
         )
     obj = mujoco.mjtObj
+    pairs = candidate_geom_pairs(m) if contacts_enabled(m) else []
+    mixed = _mix_pair_params(m, pairs)
+    g1 = np.array([p[0] for p in pairs], np.int32)
+    g2 = np.array([p[1] for p in pairs], np.int32)
+    jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
     f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
     gravity = m.opt.gravity * (0.0 if m.opt.disableflags & _DSBL.mjDSBL_GRAVITY else 1.0)
@@ -160,7 +223,7 @@ def model_from_mujoco(m: mujoco.MjModel, integrator: str | None = None) -> Model
         body_jntnum=i32(m.body_jntnum), body_jntadr=i32(m.body_jntadr),
         body_dofnum=i32(m.body_dofnum), body_dofadr=i32(m.body_dofadr),
         jnt_type=i32(m.jnt_type), jnt_qposadr=i32(m.jnt_qposadr), jnt_dofadr=i32(m.jnt_dofadr),
-        jnt_bodyid=i32(m.jnt_bodyid), jnt_limited=i32(m.jnt_limited),
+        jnt_bodyid=i32(m.jnt_bodyid), jnt_limited=i32(jnt_limited),
         dof_bodyid=i32(m.dof_bodyid), dof_jntid=i32(m.dof_jntid), dof_parentid=i32(m.dof_parentid),
         geom_bodyid=i32(m.geom_bodyid), geom_type=i32(m.geom_type),
         geom_contype=i32(m.geom_contype), geom_conaffinity=i32(m.geom_conaffinity),
@@ -170,6 +233,8 @@ def model_from_mujoco(m: mujoco.MjModel, integrator: str | None = None) -> Model
         actuator_ctrllimited=i32(m.actuator_ctrllimited),
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
+        pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
+        solver_iterations=int(solver_iterations),
         integrator=int(integ), disableflags=int(m.opt.disableflags),
         body_names=_names(m, obj.mjOBJ_BODY, m.nbody), jnt_names=_names(m, obj.mjOBJ_JOINT, m.njnt),
         geom_names=_names(m, obj.mjOBJ_GEOM, m.ngeom), site_names=_names(m, obj.mjOBJ_SITE, m.nsite),
@@ -186,10 +251,19 @@ def model_from_mujoco(m: mujoco.MjModel, integrator: str | None = None) -> Model
         actuator_gear=f(m.actuator_gear), actuator_ctrlrange=f(m.actuator_ctrlrange),
         actuator_forcerange=f(m.actuator_forcerange),
         actuator_gainprm=f(m.actuator_gainprm), actuator_biasprm=f(m.actuator_biasprm),
+        pair_friction=f(mixed["friction"]), pair_solref=f(mixed["solref"]),
+        pair_solimp=f(mixed["solimp"]), pair_margin=f(mixed["margin"]), pair_gap=f(mixed["gap"]),
+        jnt_solref=f(m.jnt_solref), jnt_solimp=f(m.jnt_solimp), jnt_margin=f(m.jnt_margin),
+        body_invweight0=f(m.body_invweight0), dof_invweight0=f(m.dof_invweight0),
+        impratio=f(m.opt.impratio),
     )  # fmt: skip
 
 
-def load_mjcf(path_or_xml: str | os.PathLike, integrator: str | None = None) -> Model:
+def load_mjcf(
+    path_or_xml: str | os.PathLike,
+    integrator: str | None = None,
+    solver_iterations: int = DEFAULT_SOLVER_ITERATIONS,
+) -> Model:
     """Compiles an MJCF file (or XML string) with MuJoCo's compiler into a fastrl ``Model``.
 
     Defaults, inertias from geoms and actuator gains are exactly as MuJoCo computes them. Features
@@ -198,10 +272,11 @@ def load_mjcf(path_or_xml: str | os.PathLike, integrator: str | None = None) -> 
     Args:
       path_or_xml: a path to an ``.xml`` file, or the XML text itself.
       integrator: ``"euler"`` or ``"rk4"`` to override the model's ``<option integrator>``.
+      solver_iterations: the constraint solver's static iteration count (Newton steps).
     Returns:
       The ``Model``; float parameters are float32 unless ``jax_enable_x64`` is on.
     """
-    return model_from_mujoco(_compile(path_or_xml), integrator)
+    return model_from_mujoco(_compile(path_or_xml), integrator, solver_iterations)
 
 
 def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
@@ -219,13 +294,19 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
         if value.shape != (n,):
             raise ValueError(f"{name} has shape {value.shape}; this model needs ({n},)")
     eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (nb, 3, 3))
+    from fastrl.physics.constraint import sizes
+
+    ncon, nefc = sizes(model)
     return Data(
-        qpos=qpos, qvel=qvel, ctrl=ctrl, time=z(), qfrc_applied=z(nv),
+        qpos=qpos, qvel=qvel, ctrl=ctrl, time=z(), qfrc_applied=z(nv), qacc_warmstart=z(nv),
         xpos=z(nb, 3), xquat=z(nb, 4).at[:, 0].set(1.0), xmat=eye, xipos=z(nb, 3), ximat=eye,
         xanchor=z(nj, 3), xaxis=z(nj, 3), geom_xpos=z(ng, 3), geom_xmat=z(ng, 3, 3),
         site_xpos=z(ns, 3), site_xmat=z(ns, 3, 3), subtree_com=z(nb, 3), cinert=z(nb, 10),
         cdof=z(nv, 6), cvel=z(nb, 6), cdof_dot=z(nv, 6), qM=z(nv, nv), qfrc_bias=z(nv),
         qfrc_spring=z(nv), qfrc_damper=z(nv), qfrc_passive=z(nv), actuator_length=z(nu),
         actuator_velocity=z(nu), actuator_force=z(nu), qfrc_actuator=z(nv), qfrc_smooth=z(nv),
-        qacc=z(nv), diverged=jnp.zeros((), bool),
+        qacc=z(nv), qacc_smooth=z(nv), contact_dist=z(ncon), contact_pos=z(ncon, 3),
+        contact_frame=z(ncon, 3, 3), efc_J=z(nefc, nv), efc_pos=z(nefc), efc_aref=z(nefc),
+        efc_D=z(nefc), efc_active=jnp.zeros(nefc, bool), efc_force=z(nefc), qfrc_constraint=z(nv),
+        diverged=jnp.zeros((), bool),
     )  # fmt: skip

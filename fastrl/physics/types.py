@@ -25,6 +25,19 @@ class JointType(enum.IntEnum):
     HINGE = 3
 
 
+class GeomType(enum.IntEnum):
+    """MuJoCo's ``mjtGeom`` values."""
+
+    PLANE = 0
+    HFIELD = 1
+    SPHERE = 2
+    CAPSULE = 3
+    ELLIPSOID = 4
+    CYLINDER = 5
+    BOX = 6
+    MESH = 7
+
+
 class Integrator(enum.IntEnum):
     """MuJoCo's ``mjtIntegrator`` values that fastrl implements."""
 
@@ -55,6 +68,9 @@ class Model:
       actuator_gaintype, actuator_biastype     (nu,)    0 fixed/none, 1 affine
       actuator_ctrllimited, forcelimited       (nu,)
       jnt_actfrclimited                        (njnt,)
+      pair_geom1, pair_geom2, pair_condim      (npair,) geom pairs that can touch (type1 <= type2)
+      cone                                     0 pyramidal, 1 elliptic friction cone
+      solver_iterations                        static iteration count of the constraint solver
       integrator                               Integrator
       disableflags                             MuJoCo's mjtDisableBit mask
       body_names, jnt_names, geom_names, site_names, actuator_names   tuples of str
@@ -70,6 +86,11 @@ class Model:
       site_pos (nsite,3), site_quat (nsite,4)
       actuator_gear (nu,6), actuator_ctrlrange (nu,2), actuator_forcerange (nu,2)
       actuator_gainprm (nu,10), actuator_biasprm (nu,10)
+      pair_friction (npair,5), pair_solref (npair,2), pair_solimp (npair,5)
+      pair_margin (npair,), pair_gap (npair,)       contact parameters, mixed as MuJoCo mixes them
+      jnt_solref (njnt,2), jnt_solimp (njnt,5), jnt_margin (njnt,)   joint-limit softness
+      body_invweight0 (nbody,2), dof_invweight0 (nv,)   MuJoCo's inverse weights (for R)
+      impratio ()
     """
 
     nq: int
@@ -104,6 +125,11 @@ class Model:
     actuator_ctrllimited: np.ndarray
     actuator_forcelimited: np.ndarray
     jnt_actfrclimited: np.ndarray
+    pair_geom1: np.ndarray
+    pair_geom2: np.ndarray
+    pair_condim: np.ndarray
+    cone: int
+    solver_iterations: int
     integrator: int
     disableflags: int
     body_names: tuple
@@ -139,6 +165,21 @@ class Model:
     actuator_forcerange: jax.Array
     actuator_gainprm: jax.Array
     actuator_biasprm: jax.Array
+    pair_friction: jax.Array
+    pair_solref: jax.Array
+    pair_solimp: jax.Array
+    pair_margin: jax.Array
+    pair_gap: jax.Array
+    jnt_solref: jax.Array
+    jnt_solimp: jax.Array
+    jnt_margin: jax.Array
+    body_invweight0: jax.Array
+    dof_invweight0: jax.Array
+    impratio: jax.Array
+
+    @property
+    def npair(self) -> int:
+        return int(self.pair_geom1.size)
 
     def summary(self) -> str:
         """A one-paragraph description of the scene's size."""
@@ -148,6 +189,7 @@ class Model:
         return (
             f"bodies {self.nbody - 1} (+world), joints {self.njnt} ({joints}), nq {self.nq}, "
             f"nv {self.nv}, actuators {self.nu}, geoms {self.ngeom}, sites {self.nsite}, "
+            f"contact pairs {self.npair}, "
             f"integrator {Integrator(self.integrator).name}, timestep {float(self.timestep):g}"
         )
 
@@ -157,6 +199,7 @@ class Data:
     """Simulation state and the quantities the pipeline derives from it (MuJoCo's names).
 
     State:        qpos (nq,)  qvel (nv,)  ctrl (nu,)  time ()  qfrc_applied (nv,)
+                  qacc_warmstart (nv,)  the last step's acceleration, the solver's starting point
     Kinematics:   xpos (nbody,3)  xquat (nbody,4)  xmat (nbody,3,3)  xipos (nbody,3)
                   ximat (nbody,3,3)  xanchor (njnt,3)  xaxis (njnt,3)
                   geom_xpos (ngeom,3)  geom_xmat (ngeom,3,3)  site_xpos (nsite,3)  site_xmat (nsite,3,3)
@@ -165,6 +208,11 @@ class Data:
     Dynamics:     qM (nv,nv)  qfrc_bias (nv,)  qfrc_spring (nv,)  qfrc_damper (nv,)
                   qfrc_passive (nv,)  actuator_length (nu,)  actuator_velocity (nu,)
                   actuator_force (nu,)  qfrc_actuator (nv,)  qfrc_smooth (nv,)  qacc (nv,)
+                  qacc_smooth (nv,)  acceleration without constraints
+    Contacts:     contact_dist (ncon,)  contact_pos (ncon,3)  contact_frame (ncon,3,3) (rows: normal,
+                  tangents); candidates of the static pair table, active where dist < margin
+    Constraints:  efc_J (nefc,nv)  efc_pos (nefc,)  efc_aref (nefc,)  efc_D (nefc,) (= 1/R)
+                  efc_active (nefc,)  efc_force (nefc,)  qfrc_constraint (nv,)
     Health:       diverged ()  True once the state has been non-finite or beyond bounds
     """
 
@@ -173,6 +221,7 @@ class Data:
     ctrl: jax.Array
     time: jax.Array
     qfrc_applied: jax.Array
+    qacc_warmstart: jax.Array
     xpos: jax.Array
     xquat: jax.Array
     xmat: jax.Array
@@ -200,4 +249,15 @@ class Data:
     qfrc_actuator: jax.Array
     qfrc_smooth: jax.Array
     qacc: jax.Array
+    qacc_smooth: jax.Array
+    contact_dist: jax.Array
+    contact_pos: jax.Array
+    contact_frame: jax.Array
+    efc_J: jax.Array
+    efc_pos: jax.Array
+    efc_aref: jax.Array
+    efc_D: jax.Array
+    efc_active: jax.Array
+    efc_force: jax.Array
+    qfrc_constraint: jax.Array
     diverged: jax.Array
