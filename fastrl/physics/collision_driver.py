@@ -47,15 +47,15 @@ def contact_layout(m: Model) -> np.ndarray:
 def make_frame(normal: jax.Array, tangent: jax.Array) -> jax.Array:
     """Contact frame (..., 3, 3): rows are the normal and two tangents (mju_makeFrame).
 
-    The first tangent is ``tangent`` made orthogonal to the normal; where that hint is absent or
-    (nearly) along the normal, the world y axis is used instead (z if the normal is nearly along
-    y). The second tangent is normal x first tangent.
+    The first tangent is ``tangent`` made orthogonal to the normal; where that hint is absent
+    (squared norm below 0.25, as MuJoCo tests it) or exactly along the normal, the world y axis is
+    used instead (z if the normal is nearly along y). The second tangent is normal x first.
     """
     dtype = normal.dtype
     use_y = jnp.abs(normal[..., 1:2]) < 0.5
     default = jnp.where(use_y, jnp.array([0.0, 1.0, 0.0], dtype), jnp.array([0.0, 0.0, 1.0], dtype))
     hint = tangent - normal * dot(normal, tangent)[..., None]
-    usable = dot(hint, hint)[..., None] > 0.25
+    usable = (dot(tangent, tangent) >= 0.25)[..., None] & (dot(hint, hint) > 1e-12)[..., None]
     guess = jnp.where(usable, hint, default)
     t1 = guess - normal * dot(normal, guess)[..., None]
     t1 = t1 / jnp.linalg.norm(t1, axis=-1, keepdims=True)
