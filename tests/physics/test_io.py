@@ -32,7 +32,14 @@ def test_public_api_shapes():
 @pytest.mark.parametrize(
     "xml, words",
     [
-        (_xml(joint=' range="-1 1" limited="true"'), ["joint limits", "'j'"]),
+        (
+            BASE.format(
+                body='<body name="b"><joint name="bj" type="ball" range="0 1" limited="true"/>'
+                '<geom size="0.1" contype="0" conaffinity="0"/></body>',
+                extra="",
+            ),
+            ["limits on a free/ball joint", "'bj'"],
+        ),
         (_xml(extra='<tendon><fixed name="t"><joint joint="j" coef="1"/></fixed></tendon>'), ["tendons"]),
         (
             _xml(extra='<actuator><general name="mus" joint="j" dyntype="filter" dynprm="0.1"/></actuator>'),
@@ -40,9 +47,19 @@ def test_public_api_shapes():
         ),
         (
             BASE.format(
-                body='<geom type="plane" size="1 1 1"/><body><freejoint/><geom size="0.1"/></body>', extra=""
+                body='<geom name="floor" type="plane" size="1 1 1"/>'
+                '<body><freejoint/><geom name="can" type="cylinder" size="0.1 0.1"/></body>',
+                extra="",
             ),
-            ["contacts", "1 geom pairs"],
+            ["collision plane-cylinder", "'floor'", "'can'"],
+        ),
+        (
+            BASE.format(
+                body='<geom type="plane" size="1 1 1"/>'
+                '<body><freejoint/><geom size="0.1" condim="6"/></body>',
+                extra="",
+            ),
+            ["condim"],
         ),
         (_xml(extra='<option viscosity="0.1"/>'), ["fluid"]),
     ],
@@ -54,9 +71,16 @@ def test_unsupported_features_raise_clear_errors(xml, words):
         assert w in str(err.value)
 
 
-def test_disabling_contacts_and_limits_loads():
+def test_disabling_contacts_and_limits_drops_their_rows():
+    from fastrl.physics.constraint import sizes
+
+    limited = _xml(joint=' range="-1 1" limited="true"')
+    assert sizes(physics.load_mjcf(limited)) == (0, 2)
     xml = _xml(joint=' range="-1 1" limited="true"', extra='<option><flag limit="disable"/></option>')
-    assert physics.load_mjcf(xml).njnt == 1
+    assert sizes(physics.load_mjcf(xml)) == (0, 0)
+    ball = '<geom type="plane" size="1 1 1"/><body><freejoint/><geom type="cylinder" size="0.1 0.1"/></body>'
+    off = BASE.format(body=ball, extra='<option><flag contact="disable"/></option>')
+    assert physics.load_mjcf(off).npair == 0
 
 
 def test_bad_inputs():
