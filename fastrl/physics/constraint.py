@@ -16,7 +16,7 @@ import numpy as np
 
 from fastrl.physics import tree
 from fastrl.physics.collision_driver import contact_layout
-from fastrl.physics.math import cross
+from fastrl.physics.math import cross, matmul, matvec
 from fastrl.physics.types import Data, JointType, Model
 
 _DSBL = mujoco.mjtDisableBit
@@ -106,7 +106,7 @@ def make_constraint(m: Model, d: Data) -> Data:
         k, b = stiffness_damping(m, solref, solimp)
         regulariser = jnp.maximum(1e-15, (1 - imp) / imp * diag)
         rep = lambda x: jnp.repeat(x, repeat)  # noqa: E731
-        vel = jac @ d.qvel
+        vel = matvec(jac, d.qvel)
         jacs.append(jac)
         poss.append(rep(pos))
         arefs.append(-rep(b) * vel - rep(k * imp * r))
@@ -131,7 +131,7 @@ def make_constraint(m: Model, d: Data) -> Data:
         g1, g2 = m.pair_geom1[layout], m.pair_geom2[layout]
         b1, b2 = m.geom_bodyid[g1], m.geom_bodyid[g2]
         jac_p = point_jacobian(m, d, b2, d.contact_pos) - point_jacobian(m, d, b1, d.contact_pos)
-        jac_c = jnp.einsum("cij,cjv->civ", d.contact_frame, jac_p)  # normal, tangent1, tangent2
+        jac_c = matmul(d.contact_frame, jac_p)  # rows: normal, tangent1, tangent2
         tran = m.body_invweight0[b1, 0] + m.body_invweight0[b2, 0]
         fric = m.pair_friction[layout]
         condim = m.pair_condim[layout]

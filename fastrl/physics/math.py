@@ -131,3 +131,24 @@ def mul_inert_vec(inert: jax.Array, v: jax.Array) -> jax.Array:
         axis=-1,
     )
     return jnp.concatenate([iw + cross(h, lin), m * lin - cross(h, w)], axis=-1)
+
+
+# Small per-environment products as explicit sums over the contracted axis. Under ``vmap`` a
+# product of two batched operands becomes a batched dot, which XLA:CPU runs as a loop of tiny
+# GEMMs, and a ``sum`` over a short axis becomes a slow reduction; a Python-unrolled sum of
+# elementwise terms fuses into one vectorised loop instead. Measured for 4096 Ants: J a (116x14)
+# 0.7 ms unrolled vs 1.3 ms dot vs 3.8 ms multiply-and-reduce. (A result read piecewise by many
+# consumers is better made by a dot, which XLA never fuses into them: see solver._hessian.)
+def matvec(a: jax.Array, x: jax.Array) -> jax.Array:
+    """``a @ x`` for a (n, k) matrix and a (k,) vector."""
+    return sum(a[..., :, k] * x[..., k, None] for k in range(a.shape[-1]))
+
+
+def vecmat(x: jax.Array, a: jax.Array) -> jax.Array:
+    """``x @ a`` for a (n,) vector and a (n, k) matrix."""
+    return sum(x[..., i, None] * a[..., i, :] for i in range(a.shape[-2]))
+
+
+def matmul(a: jax.Array, b: jax.Array) -> jax.Array:
+    """``a @ b`` for (..., n, k) and (..., k, p) matrices."""
+    return sum(a[..., :, k, None] * b[..., None, k, :] for k in range(a.shape[-1]))

@@ -159,7 +159,7 @@ def com_pos(m: Model, d: Data) -> Data:
     subtree_com = subtree_com.at[0].set(world_com)
     # Inertia of each body about its tree's centre of mass, in world axes.
     off = d.xipos - subtree_com[m.body_rootid]
-    inertia = jnp.einsum("bij,bj,bkj->bik", d.ximat, m.body_inertia, d.ximat)
+    inertia = math.matmul(d.ximat * m.body_inertia[:, None, :], jnp.swapaxes(d.ximat, -1, -2))
     inertia = inertia + mass[:, None, None] * (
         jnp.sum(off * off, -1)[:, None, None] * jnp.eye(3, dtype=dtype) - off[:, :, None] * off[:, None, :]
     )
@@ -235,7 +235,8 @@ def _solve_factored(anc, factor, vec):
     return jnp.stack(x)
 
 
-def _ancestors(m: Model) -> tuple[tuple[int, ...], ...]:
+def ancestors(m: Model) -> tuple[tuple[int, ...], ...]:
+    """Each dof's ancestors, nearest first: the structure of M and of its factor."""
     return tuple(tuple(chain) for chain in tree.dof_ancestors(m))
 
 
@@ -252,12 +253,12 @@ def factor_m(m: Model, qm: jax.Array) -> tuple[jax.Array, jax.Array]:
       ``L`` (nv, nv) unit lower-triangular (L[k, i] nonzero only for ancestors i of k) and the
       diagonal ``D`` (nv,), with ``qm = L^T diag(D) L``.
     """
-    return _factor(_ancestors(m), qm)
+    return _factor(ancestors(m), qm)
 
 
 def solve_m(m: Model, factor: tuple[jax.Array, jax.Array], vec: jax.Array) -> jax.Array:
     """Solves ``qm x = vec`` given ``factor_m(m, qm)`` (mj_solveM), along the static tree."""
-    return _solve_factored(_ancestors(m), factor, vec)
+    return _solve_factored(ancestors(m), factor, vec)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
@@ -280,10 +281,16 @@ def _solve_bwd(anc, residual, x_bar):
 _solve.defvjp(_solve_fwd, _solve_bwd)
 
 
+def solve_structured(structure: tuple[tuple[int, ...], ...], qm: jax.Array, vec: jax.Array) -> jax.Array:
+    """``qm^-1 vec`` for a symmetric positive-definite ``qm`` whose factor has the sparsity
+    ``structure`` (each row's nonzero columns, nearest first); differentiable like ``solve``."""
+    return _solve(structure, qm, vec)
+
+
 def solve(m: Model, qm: jax.Array, vec: jax.Array) -> jax.Array:
     """``qm^-1 vec`` by ``factor_m`` + ``solve_m``, with a reverse-mode rule that reuses the factor.
 
     Differentiating through the unrolled factorisation would build (and compile) its transpose;
     the rule ``vec_bar = qm^-1 x_bar``, ``qm_bar = -vec_bar x^T`` needs one more solve instead.
     """
-    return _solve(_ancestors(m), qm, vec)
+    return _solve(ancestors(m), qm, vec)
