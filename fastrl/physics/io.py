@@ -187,7 +187,9 @@ def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[st
     return out
 
 
-DEFAULT_SOLVER_ITERATIONS = 4
+# Newton steps per solve. 8 converge on the Ant with random controls (median torso drift vs
+# MuJoCo over 1 s: 5 mm with RK4; 4 steps leave 3 cm); more change nothing measurable.
+DEFAULT_SOLVER_ITERATIONS = 8
 
 
 def model_from_mujoco(
