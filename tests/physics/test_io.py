@@ -103,3 +103,15 @@ def test_model_is_a_pytree_with_static_topology():
     m2 = jax.tree.unflatten(jax.tree.structure(m), leaves)
     np.testing.assert_array_equal(m2.jnt_type, m.jnt_type)
     assert hash(jax.tree.structure(m)) == hash(jax.tree.structure(m2))
+
+
+def test_info_cli_prints_scene_summary(capsys):
+    from fastrl.physics import info
+
+    info.main([str(__import__("pathlib").Path(physics.__file__).parents[1] / "assets" / "ant.xml")])
+    out = capsys.readouterr().out
+    assert "13 kept of 91 geom pairs (12 plane-capsule, 1 plane-sphere)" in out
+    assert "116 (16 limit + 100 contact" in out
+    with pytest.raises(SystemExit) as err:
+        info.main(["no/such.xml"])
+    assert err.value.code == 2

@@ -1,0 +1,160 @@
+"""Ant with contacts: fastrl's control steps/s vs EnvPool (MuJoCo C) and Brax, in one run.
+
+    python experiments/bench_contacts.py             # a few minutes on 2 cores
+    python experiments/bench_contacts.py --quick     # tiny, for CI (peers skipped if absent)
+
+Control step 0.05 s. fastrl runs its Ant asset (a) as Gymnasium/EnvPool do, RK4 at 0.01 s x 5,
+and (b) with semi-implicit Euler at 0.01 s x 5; both with the default solver iterations, under a
+jitted scan of vmapped steps with fresh random actions each control step. Peers run from
+``.venv-peers`` (``bash experiments/peers/setup_peers.sh``): EnvPool ``Ant-v4`` with 2 threads and
+Brax's ``ant`` with its mjx, generalized, spring and positional backends at their own defaults.
+Writes ``experiments/results/contacts_throughput.{md,json,png}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import subprocess
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fastrl import physics
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+ANT = ROOT / "fastrl" / "assets" / "ant.xml"
+PEERS = ROOT / ".venv-peers" / "bin" / "python"
+RESULTS = ROOT / "experiments" / "results"
+# Gymnasium's Ant start pose: standing, legs bent.
+QPOS0 = np.array([0, 0, 0.75, 1, 0, 0, 0, 0, 1, 0, -1, 0, -1, 0, 1.0])
+
+
+def bench_fastrl(integrator: str, batch: int, control_steps: int, substeps: int = 5) -> dict:
+    m = physics.load_mjcf(ANT, integrator=integrator)
+    key = jax.random.PRNGKey(0)
+    qvel = 0.1 * jax.random.normal(key, (batch, m.nv))
+    data = jax.vmap(lambda v: physics.make_data(m, qpos=QPOS0, qvel=v))(qvel)
+    ctrl = jax.random.uniform(key, (control_steps, batch, m.nu), minval=-1, maxval=1)
+
+    def control_step(d, u):
+        return jax.lax.fori_loop(0, substeps, lambda _, d: physics.step(m, d, u), d)
+
+    def run(d, ctrl):
+        return jax.lax.scan(lambda d, u: (jax.vmap(control_step)(d, u), None), d, ctrl)[0]
+
+    t0 = time.perf_counter()
+    compiled = jax.jit(run).lower(data, ctrl).compile()
+    compile_s = time.perf_counter() - t0
+    out = jax.block_until_ready(compiled(data, ctrl))
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(compiled(out, ctrl))
+    wall = time.perf_counter() - t0
+    return {
+        "engine": f"fastrl {integrator} 0.01x{substeps}",
+        "batch": batch,
+        "control_steps_per_s": batch * control_steps / wall,
+        "compile_s": compile_s,
+        "diverged_fraction": float(jnp.mean(out.diverged)),
+        "solver_iterations": m.solver_iterations,
+    }
+
+
+def _peer(args: list[str]) -> dict | None:
+    if not PEERS.exists():
+        print(f"peers not installed ({PEERS}); run experiments/peers/setup_peers.sh", flush=True)
+        return None
+    env = {**os.environ, "PYTHONPATH": ""}
+    proc = subprocess.run([str(PEERS), *args], capture_output=True, text=True, env=env, cwd=ROOT, timeout=900)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode or not lines:
+        print(f"peer failed: {' '.join(args)}\n{proc.stderr[-2000:]}", flush=True)
+        return None
+    return json.loads(lines[-1])
+
+
+def bench_envpool(num_envs: int, seconds: float) -> dict | None:
+    r = _peer(["experiments/peers/envpool_ant.py", "--num-envs", str(num_envs), "--seconds", str(seconds)])
+    if r:
+        r = {"engine": "EnvPool Ant-v4 (MuJoCo C, RK4 0.01x5, 2 threads)", "batch": num_envs,
+             "control_steps_per_s": r["control_steps_per_s"], "compile_s": 0.0}  # fmt: skip
+    return r
+
+
+def bench_brax(backend: str, batch: int, steps: int) -> dict | None:
+    r = _peer(
+        ["experiments/peers/brax_ant.py", "--backend", backend, "--batch", str(batch), "--steps", str(steps)]
+    )
+    if r:
+        r = {"engine": f"Brax {backend} (dt {r['dt']:.3f}, {r['n_frames']} frames)", "batch": batch,
+             "control_steps_per_s": r["control_steps_per_s"], "compile_s": r["compile_s"],
+             "nonfinite": r["nonfinite"]}  # fmt: skip
+    return r
+
+
+def _chart(rows: list[dict], path: pathlib.Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for engine in dict.fromkeys(r["engine"] for r in rows):
+        pts = sorted((r["batch"], r["control_steps_per_s"]) for r in rows if r["engine"] == engine)
+        ax.plot(*zip(*pts, strict=True), marker="o", label=engine)
+    ax.set(xscale="log", yscale="log", xlabel="batch (parallel environments)",
+           ylabel="control steps / s (0.05 s each)", title="Ant with contacts, 2-core CPU")  # fmt: skip
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
+    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    args = parser.parse_args()
+    fastrl_batches = [16] if args.quick else [256, 1024, 4096]
+    control_steps = 2 if args.quick else 10
+    rows = []
+    for integrator in ("rk4", "euler"):
+        for b in fastrl_batches:
+            rows.append(bench_fastrl(integrator, b, control_steps))
+            print(rows[-1], flush=True)
+    if not args.quick:
+        for n in (16, 64, 256):
+            rows.append(bench_envpool(n, 5.0))
+            print(rows[-1], flush=True)
+        for backend in ("mjx", "generalized", "spring", "positional"):
+            for b in (256, 1024):
+                rows.append(bench_brax(backend, b, 50))
+                print(rows[-1], flush=True)
+    rows = [r for r in rows if r]
+    args.out.mkdir(parents=True, exist_ok=True)
+    name = "contacts_throughput_quick" if args.quick else "contacts_throughput"
+    (args.out / f"{name}.json").write_text(json.dumps(rows, indent=1))
+    best = {}
+    for r in rows:
+        best[r["engine"]] = max(best.get(r["engine"], 0.0), r["control_steps_per_s"])
+    envpool = next((v for k, v in best.items() if k.startswith("EnvPool")), None)
+    lines = ["# Ant with contacts: control steps per second (0.05 s each)", "",
+             f"Machine: {os.cpu_count()} cores. Command: `python experiments/bench_contacts.py`.", "",
+             "| engine | batch | control steps/s | compile s | vs EnvPool best |",
+             "| --- | ---: | ---: | ---: | ---: |"]  # fmt: skip
+    for r in rows:
+        ratio = f"{r['control_steps_per_s'] / envpool:.2f}x" if envpool else "n/a"
+        sps = f"{r['control_steps_per_s']:,.0f}"
+        lines.append(f"| {r['engine']} | {r['batch']} | {sps} | {r['compile_s']:.1f} | {ratio} |")
+    lines += ["", "Best per engine:", ""] + [f"- {k}: {v:,.0f}" for k, v in best.items()]
+    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
+    _chart(rows, args.out / f"{name}.png")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

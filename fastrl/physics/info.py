@@ -1,0 +1,64 @@
+"""Scene summary: what the compiled program will model.
+
+    python -m fastrl.physics.info MODEL.xml [--integrator rk4] [--solver-iterations 8]
+
+Prints bodies, joints and dofs, geoms, the candidate contact pairs kept (by geom-type pair) out
+of all geom pairs, and the static constraint-row budget the solver works with.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+
+import mujoco
+
+from fastrl.physics import constraint, io
+from fastrl.physics.types import GeomType, JointType, Model
+
+
+def summary_lines(m: Model) -> list[str]:
+    """Human-readable description of a ``Model``'s size and static structure."""
+    joints = collections.Counter(JointType(t).name.lower() for t in m.jnt_type)
+    geoms = collections.Counter(GeomType(t).name.lower() for t in m.geom_type)
+    pairs = collections.Counter(
+        f"{GeomType(m.geom_type[a]).name.lower()}-{GeomType(m.geom_type[b]).name.lower()}"
+        for a, b in zip(m.pair_geom1, m.pair_geom2, strict=True)
+    )
+    ncon, nefc = constraint.sizes(m)
+    nlim = constraint.limited_joints(m).size
+    all_pairs = m.ngeom * (m.ngeom - 1) // 2
+    fmt = lambda c: ", ".join(f"{n} {k}" for k, n in sorted(c.items())) or "none"  # noqa: E731
+    return [
+        f"bodies          {m.nbody - 1} (+ world)",
+        f"joints          {m.njnt} ({fmt(joints)}); nq {m.nq}, nv {m.nv}",
+        f"actuators       {m.nu}",
+        f"geoms           {m.ngeom} ({fmt(geoms)})",
+        f"contact pairs   {m.npair} kept of {all_pairs} geom pairs ({fmt(pairs)})",
+        f"contacts        {ncon} candidates (fixed count, active when within margin)",
+        f"limited joints  {nlim}",
+        f"constraint rows {nefc} ({2 * nlim} limit + {nefc - 2 * nlim} contact, pyramidal cone)",
+        f"solver          {'none traced' if nefc == 0 else f'Newton, {m.solver_iterations} iterations'}",
+        f"integrator      {m.summary().split('integrator ')[1]}",
+    ]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m fastrl.physics.info", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("model", help="an MJCF file")
+    parser.add_argument("--integrator", choices=["euler", "rk4"], default=None)
+    parser.add_argument("--solver-iterations", type=int, default=io.DEFAULT_SOLVER_ITERATIONS)
+    args = parser.parse_args(argv)
+    try:
+        m = io.load_mjcf(args.model, integrator=args.integrator, solver_iterations=args.solver_iterations)
+    except (io.UnsupportedFeatureError, FileNotFoundError, ValueError) as err:
+        parser.exit(2, f"error: {err}\n")
+    mj_name = mujoco.MjModel.from_xml_path(args.model).names.split(b"\0")[0].decode() or args.model
+    print(f"{mj_name}: {args.model}")
+    print("\n".join("  " + line for line in summary_lines(m)))
+
+
+if __name__ == "__main__":
+    main()
