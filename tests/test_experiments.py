@@ -10,14 +10,15 @@ import sys
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
+def _run_quick(script: str, out: pathlib.Path, result: str):
+    """Runs ``experiments/<script> --quick`` into ``out`` and returns its JSON result."""
+    cmd = [sys.executable, str(ROOT / "experiments" / script), "--quick", "--out", str(out)]
+    subprocess.run(cmd, check=True, cwd=ROOT, timeout=900)
+    return json.loads((out / result).read_text())
+
+
 def test_bench_physics_quick(tmp_path):
-    subprocess.run(
-        [sys.executable, str(ROOT / "experiments" / "bench_physics.py"), "--quick", "--out", str(tmp_path)],
-        check=True,
-        cwd=ROOT,
-        timeout=600,
-    )
-    result = json.loads((tmp_path / "physics_throughput_quick.json").read_text())
+    result = _run_quick("bench_physics.py", tmp_path, "physics_throughput_quick.json")
     engines = {r["engine"] for r in result["rows"]}
     assert "fastrl" in engines and "MuJoCo C rollout (2 thread)" in engines
     assert all(r["steps_per_s"] > 0 for r in result["rows"])
@@ -25,13 +26,13 @@ def test_bench_physics_quick(tmp_path):
 
 
 def test_bench_contacts_quick(tmp_path):
-    subprocess.run(
-        [sys.executable, str(ROOT / "experiments" / "bench_contacts.py"), "--quick", "--out", str(tmp_path)],
-        check=True,
-        cwd=ROOT,
-        timeout=900,
-    )
-    rows = json.loads((tmp_path / "contacts_throughput_quick.json").read_text())
+    rows = _run_quick("bench_contacts.py", tmp_path, "contacts_throughput_quick.json")
     assert {r["engine"] for r in rows} == {"fastrl rk4 0.01x5", "fastrl euler 0.01x5"}
     assert all(r["control_steps_per_s"] > 0 and r["diverged_fraction"] == 0 for r in rows)
     assert (tmp_path / "contacts_throughput_quick.png").stat().st_size > 0
+
+
+def test_stability_sweep_quick(tmp_path):
+    rows = _run_quick("stability_sweep.py", tmp_path, "stability_sweep_quick.json")
+    assert {r["integrator"] for r in rows} == {"euler", "rk4"}
+    assert all(0.0 <= r["guard_fraction"] <= r["blowup_fraction"] <= 1.0 for r in rows)

@@ -144,3 +144,61 @@ def test_ant_random_controls_track_mujoco(integrator, x64):
     ours = np.asarray(jax.jit(jax.vmap(rollout))(jnp.asarray(ctrls)))
     err = np.linalg.norm(ours - np.array(ref), axis=1)
     assert np.median(err) < 0.02, np.round(err, 4)
+
+
+def test_divergence_guard_flags_and_stays_flagged():
+    """An explicit integrator past its stability limit: the guard fires, and never clears."""
+    xml = (
+        '<mujoco><option timestep="0.05" integrator="RK4"/><worldbody><body>'
+        '<joint type="hinge" axis="0 1 0" stiffness="1e6"/>'
+        '<geom type="sphere" size="0.05" contype="0" conaffinity="0"/></body></worldbody></mujoco>'
+    )
+    m = physics.load_mjcf(xml)
+    d = physics.make_data(m, qpos=np.array([0.1]))
+    flags = []
+    step = jax.jit(lambda d: physics.step(m, d))
+    for _ in range(60):
+        d = step(d)
+        flags.append(bool(d.diverged))
+    assert flags[-1] and not flags[0]
+    first = flags.index(True)
+    assert all(flags[first:])
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_ant_random_actions_stay_finite(integrator):
+    """32 Ants, 100 control steps of random actions (5 substeps each), float32: all finite."""
+    m = physics.load_mjcf(ANT, integrator=integrator)
+    qpos0 = np.array([0, 0, 0.75, 1, 0, 0, 0, 0, 1, 0, -1, 0, -1, 0, 1.0])
+    data = jax.vmap(lambda _: physics.make_data(m, qpos=qpos0))(jnp.arange(32))
+    ctrl = jax.random.uniform(jax.random.PRNGKey(0), (100, 32, m.nu), minval=-1, maxval=1)
+
+    def control_step(d, u):
+        return jax.lax.fori_loop(0, 5, lambda _, d: physics.step(m, d, u), d)
+
+    out = jax.jit(lambda d, c: jax.lax.scan(lambda d, u: (jax.vmap(control_step)(d, u), None), d, c)[0])(
+        data, ctrl
+    )
+    assert not bool(jnp.any(out.diverged))
+    assert bool(jnp.all(jnp.isfinite(out.qpos))) and bool(jnp.all(jnp.isfinite(out.qvel)))
+    assert float(jnp.min(out.qpos[:, 2])) > 0.0  # no torso through the floor
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_ant_batch_1024_random_actions_1000_control_steps_stay_finite(integrator):
+    """The issue's stability bar: batch 1024, 1000 control steps, no non-finite state."""
+    m = physics.load_mjcf(ANT, integrator=integrator)
+    qpos0 = np.array([0, 0, 0.75, 1, 0, 0, 0, 0, 1, 0, -1, 0, -1, 0, 1.0])
+    data = jax.vmap(lambda _: physics.make_data(m, qpos=qpos0))(jnp.arange(1024))
+
+    def chunk(d, key):
+        ctrl = jax.random.uniform(key, (100, 1024, m.nu), minval=-1, maxval=1)
+        step5 = lambda d, u: jax.lax.fori_loop(0, 5, lambda _, d: physics.step(m, d, u), d)  # noqa: E731
+        return jax.lax.scan(lambda d, u: (jax.vmap(step5)(d, u), None), d, ctrl)[0]
+
+    run = jax.jit(chunk)
+    for key in jax.random.split(jax.random.PRNGKey(1), 10):
+        data = run(data, key)
+    assert not bool(jnp.any(data.diverged))
+    assert bool(jnp.all(jnp.isfinite(data.qpos)))
