@@ -8,6 +8,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from fastrl.physics.collision_driver import PRIMITIVES
+from fastrl.physics.constraint import sizes as constraint_sizes
 from fastrl.physics.types import Data, Integrator, JointType, Model
 
 _DSBL = mujoco.mjtDisableBit
@@ -92,8 +94,6 @@ def _check_supported(m: mujoco.MjModel) -> None:
     if limited.any() and not flags & (_DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT):
         problems.append(f"limits on a free/ball joint ({_first(m, limited, obj.mjOBJ_JOINT)})")
     if contacts_enabled(m):
-        from fastrl.physics.collision_driver import PRIMITIVES
-
         for g1, g2 in candidate_geom_pairs(m):
             key = (int(m.geom_type[g1]), int(m.geom_type[g2]))
             if key not in PRIMITIVES:
@@ -296,9 +296,7 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
         if value.shape != (n,):
             raise ValueError(f"{name} has shape {value.shape}; this model needs ({n},)")
     eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (nb, 3, 3))
-    from fastrl.physics.constraint import sizes
-
-    ncon, nefc = sizes(model)
+    ncon, nefc = constraint_sizes(model)
     return Data(
         qpos=qpos, qvel=qvel, ctrl=ctrl, time=z(), qfrc_applied=z(nv), qacc_warmstart=z(nv),
         xpos=z(nb, 3), xquat=z(nb, 4).at[:, 0].set(1.0), xmat=eye, xipos=z(nb, 3), ximat=eye,

@@ -6,9 +6,11 @@ MuJoCo's soft constraints turn the constrained dynamics into the unconstrained c
 
 with ``a0`` the unconstrained acceleration (pyramidal contacts and limits; ``D = 1/R``). The
 cost is piecewise quadratic, so Newton's method finds the exact minimiser once it has the right
-active set, usually in 2-4 steps from a warm start: better accuracy per unit of compute than
-projected Gauss-Seidel or conjugate gradients, which need tens of cheaper iterations on the stiff
-contact problems of locomotion. Each step solves with ``H = M + J^T diag(D * active) J`` (see
+active set; it is MuJoCo's default for that reason, and with a static iteration count the
+solution should stop changing before the count runs out. Measured on the Ant under random
+actions, 8 steps from a warm start match MuJoCo's converged solution (4 did not, in contact
+transitions); conjugate gradients and projected Gauss-Seidel have not been measured here yet.
+Each step solves with ``H = M + J^T diag(D * active) J`` (see
 ``hessian_structure``) and then runs a few 1-D Newton steps on the exact piecewise-quadratic line
 cost. The iteration counts are static (``Model.solver_iterations``, ``LINESEARCH_ITERATIONS``), so
 the program has no data-dependent loop; a converged iterate stays put (zero step).
