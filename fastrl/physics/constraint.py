@@ -130,7 +130,9 @@ def make_constraint(m: Model, d: Data) -> Data:
     if layout.size:
         g1, g2 = m.pair_geom1[layout], m.pair_geom2[layout]
         b1, b2 = m.geom_bodyid[g1], m.geom_bodyid[g2]
-        jac_p = point_jacobian(m, d, b2, d.contact_pos) - point_jacobian(m, d, b1, d.contact_pos)
+        jac_p = point_jacobian(m, d, b2, d.contact_pos)
+        if tree.body_dof_ancestors(m)[b1].any():  # geom1 is often the static floor: no motion
+            jac_p = jac_p - point_jacobian(m, d, b1, d.contact_pos)
         jac_c = matmul(d.contact_frame, jac_p)  # rows: normal, tangent1, tangent2
         tran = m.body_invweight0[b1, 0] + m.body_invweight0[b2, 0]
         fric = m.pair_friction[layout]
