@@ -18,13 +18,6 @@ STAGE_FIELDS = [
     "actuator_force", "qfrc_actuator", "qacc",
 ]  # fmt: skip
 
-# MuJoCo 4.0 forms the intermediate RK4 positions of quaternion joints differently from the
-# classic scheme (its second stage starts from the first stage's position; we could not pin down
-# the rest). Both are fourth-order; they differ by ~1e-9 rad per step, which grows to ~1e-5 over
-# a second on chaotic free/ball-joint models. Hinge/slide models agree to rounding.
-RK4_QUATERNION_GAP = 3e-5
-
-
 def _rel_err(ours, ref) -> float:
     ours, ref = np.asarray(ours), np.asarray(ref)
     if ref.size == 0:
@@ -86,12 +79,6 @@ def test_trajectory_matches_mujoco(name, integrator, precision, request):
     ctrls = rng.uniform(-1, 1, (int(round(1.0 / mj.opt.timestep)), mj.nu))
     ref = _mujoco_trajectory(mj, qpos, qvel, ctrls)
     ours = _fastrl_trajectory(physics.model_from_mujoco(mj), qpos, qvel, ctrls)
-    quaternions = np.isin(mj.jnt_type, [mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL]).any()
-    if precision == "float32":
-        tol = 1e-3
-    elif integrator == "rk4" and quaternions:
-        tol = RK4_QUATERNION_GAP
-    else:
-        tol = 1e-6
+    tol = 1e-3 if precision == "float32" else 1e-6
     assert np.all(np.isfinite(ours))
     assert _rel_err(ours, ref) < tol
