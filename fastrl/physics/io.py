@@ -187,8 +187,9 @@ def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[st
     return out
 
 
-# Newton steps per solve. 8 converge on the Ant with random controls (median torso drift vs
-# MuJoCo over 1 s: 5 mm with RK4; 4 steps leave 3 cm); more change nothing measurable.
+# Newton steps per solve. With 8, the Ant under random controls stays within 1 cm of MuJoCo's
+# torso over 1 s in all of 32 sequences (both integrators); with 4 the RK4 median is 1.1 cm with
+# decimetre outliers, with 2 it is 45 cm. More than 8 changes nothing measurable.
 DEFAULT_SOLVER_ITERATIONS = 8
 
 
