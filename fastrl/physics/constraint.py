@@ -97,7 +97,7 @@ def stiffness_damping(m: Model, solref: jax.Array, solimp: jax.Array) -> tuple[j
 def make_constraint(m: Model, d: Data) -> Data:
     """Assembles every constraint row (limits first, then contacts, as MuJoCo orders them)."""
     dtype = d.qvel.dtype
-    jacs, poss, arefs, dees, actives = [], [], [], [], []
+    jacs, poss, arefs, dees = [], [], [], []
 
     def add(jac, pos, margin, solref, solimp, diag, repeat=1):
         """Rows of constraints that each own ``repeat`` rows sharing pos, margin and impedance."""
@@ -111,7 +111,6 @@ def make_constraint(m: Model, d: Data) -> Data:
         poss.append(rep(pos))
         arefs.append(-rep(b) * vel - rep(k * imp * r))
         active = rep(r < 0)
-        actives.append(active)
         dees.append(jnp.where(active, 1 / rep(regulariser), 0.0))
 
     lim = limited_joints(m)
@@ -158,5 +157,5 @@ def make_constraint(m: Model, d: Data) -> Data:
         return d
     return d.replace(
         efc_J=jnp.concatenate(jacs), efc_pos=jnp.concatenate(poss), efc_aref=jnp.concatenate(arefs),
-        efc_D=jnp.concatenate(dees), efc_active=jnp.concatenate(actives),
+        efc_D=jnp.concatenate(dees),
     )  # fmt: skip

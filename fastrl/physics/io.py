@@ -308,6 +308,6 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
         actuator_velocity=z(nu), actuator_force=z(nu), qfrc_actuator=z(nv), qfrc_smooth=z(nv),
         qacc=z(nv), qacc_smooth=z(nv), contact_dist=z(ncon), contact_pos=z(ncon, 3),
         contact_frame=z(ncon, 3, 3), efc_J=z(nefc, nv), efc_pos=z(nefc), efc_aref=z(nefc),
-        efc_D=z(nefc), efc_active=jnp.zeros(nefc, bool), efc_force=z(nefc), qfrc_constraint=z(nv),
+        efc_D=z(nefc), efc_force=z(nefc), qfrc_constraint=z(nv),
         diverged=jnp.zeros((), bool),
     )  # fmt: skip

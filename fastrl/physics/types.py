@@ -211,8 +211,8 @@ class Data:
                   qacc_smooth (nv,)  acceleration without constraints
     Contacts:     contact_dist (ncon,)  contact_pos (ncon,3)  contact_frame (ncon,3,3) (rows: normal,
                   tangents); candidates of the static pair table, active where dist < margin
-    Constraints:  efc_J (nefc,nv)  efc_pos (nefc,)  efc_aref (nefc,)  efc_D (nefc,) (= 1/R)
-                  efc_active (nefc,)  efc_force (nefc,)  qfrc_constraint (nv,)
+    Constraints:  efc_J (nefc,nv)  efc_pos (nefc,)  efc_aref (nefc,)  efc_D (nefc,) (= 1/R; 0 on
+                  rows beyond their margin)  efc_force (nefc,)  qfrc_constraint (nv,)
     Health:       diverged ()  True once the state has been non-finite or beyond bounds
     """
 
@@ -257,7 +257,6 @@ class Data:
     efc_pos: jax.Array
     efc_aref: jax.Array
     efc_D: jax.Array
-    efc_active: jax.Array
     efc_force: jax.Array
     qfrc_constraint: jax.Array
     diverged: jax.Array

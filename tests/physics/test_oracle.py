@@ -18,6 +18,7 @@ STAGE_FIELDS = [
     "actuator_force", "qfrc_actuator", "qacc",
 ]  # fmt: skip
 
+
 def _rel_err(ours, ref) -> float:
     ours, ref = np.asarray(ours), np.asarray(ref)
     if ref.size == 0:
