@@ -1,0 +1,345 @@
+"""Functional environments: ``reset(key) -> State`` and ``step(state, action) -> State``.
+
+Every environment is a pure function pair over a pytree ``State``, written for ONE environment
+and batched by the caller with ``jax.vmap``. ``step`` auto-resets: when an episode ends
+(terminated, truncated by the time limit, or the physics diverged), the returned state already
+holds a *fresh, randomised* episode (a new reset drawn from the state's own key, not a replay of
+the first reset), while ``final_obs`` keeps the last observation of the finished episode so a
+learner can bootstrap truncated episodes. All of it is branch-free (``jnp.where`` on the done
+flag), so a batch of environments never diverges in control flow.
+
+Gymnasium semantics are kept where users compare numbers with it: rewards, observations,
+termination and reset noise follow Gymnasium's v5 MuJoCo environments, ``terminated`` and
+``truncated`` are separate, and derived physics quantities read by rewards (``xpos``...) are
+those MuJoCo's ``mjData`` holds after ``mj_step``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fastrl import physics
+from fastrl.physics import Data, Model
+from fastrl.physics.dataclass import pytree_dataclass
+
+ASSETS = Path(__file__).resolve().parent.parent / "assets"
+
+
+@pytree_dataclass
+class State:
+    """One environment's state between steps (batched: every leaf gains a leading axis).
+
+    Fields:
+      data          physics ``Data`` (after ``mj_step``; kinematics from the last substep's start)
+      obs           (obs_size,) observation of the current episode (the new one after a reset)
+      reward        () reward of the last step (0 right after ``reset``)
+      terminated    () bool, the last step ended the episode by the task's rule or divergence
+      truncated     () bool, the last step hit the time limit
+      final_obs     (obs_size,) observation the last step produced before any auto-reset;
+                    equals ``obs`` when the episode goes on
+      metrics       dict name -> () per-step quantities: each weighted reward term as
+                    ``reward_<term>``, plus env-specific ones (``x_velocity``...) and ``diverged``
+      episode_return () return of the current episode so far; at a done step, the finished
+                    episode's total (reset on the next step)
+      episode_length () steps of the current episode so far (same convention)
+      params        dict field -> array of per-env randomised model parameters (may be empty)
+      rng           (2,) uint32 key the env draws its next reset from
+    """
+
+    data: Data
+    obs: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    final_obs: jax.Array
+    metrics: dict
+    episode_return: jax.Array
+    episode_length: jax.Array
+    params: dict
+    rng: jax.Array
+
+    @property
+    def done(self) -> jax.Array:
+        """() bool: the last step ended an episode (terminated or truncated)."""
+        return self.terminated | self.truncated
+
+
+@dataclasses.dataclass(frozen=True)
+class Randomization:
+    """Domain randomisation: per-env model parameters drawn at every reset (0 width = off).
+
+    Scales are multiplicative and uniform in ``[1 - w, 1 + w]``. Mass scales each body's mass
+    and rotational inertia together (a density change); friction scales every contact pair's
+    friction coefficients; damping scales every dof's damping. Quantities MuJoCo precomputes at
+    compile time from the nominal model (``body_invweight0``, which sets contact softness) are
+    not recomputed, as in MJX.
+
+    Fields:
+      mass        half-width of the per-body mass scale
+      friction    half-width of the per-env friction scale
+      damping     half-width of the per-dof damping scale
+    """
+
+    mass: float = 0.0
+    friction: float = 0.0
+    damping: float = 0.0
+
+    def __post_init__(self):
+        for name in ("mass", "friction", "damping"):
+            w = getattr(self, name)
+            if not 0.0 <= w < 1.0:
+                raise ValueError(f"randomization.{name}={w}: the half-width must be in [0, 1)")
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.mass or self.friction or self.damping)
+
+
+class Env:
+    """Base class: a MuJoCo-style task over fastrl physics with Gymnasium v5 semantics.
+
+    Subclasses set the class attributes and implement ``_reset_qpos_qvel``, ``_observe`` and
+    ``_reward``. Constructor arguments override the Gymnasium defaults.
+
+    Args:
+      episode_length: steps before ``truncated`` (Gymnasium's ``max_episode_steps``).
+      frame_skip: physics steps per env step.
+      reward_weights: overrides of ``default_weights`` by term name.
+      reset_noise_scale: scale of the reset noise (meaning per env, as in Gymnasium).
+      randomization: domain randomisation ranges (off by default).
+      asset: MJCF file (name in ``fastrl/assets`` or a path); defaults to the env's own.
+      solver_iterations: constraint-solver iterations (None: the model's default).
+      integrator: ``"euler"`` or ``"rk4"`` (None: the asset's).
+      timestep: physics timestep override (None: the asset's).
+      terminate_when_unhealthy: end the episode when the env's health check fails.
+    """
+
+    name: str = ""
+    asset: str = ""
+    default_frame_skip: int = 1
+    default_episode_length: int = 1000
+    default_weights: Mapping[str, float] = {}
+    default_reset_noise_scale: float = 0.0
+
+    def __init__(
+        self,
+        *,
+        episode_length: int | None = None,
+        frame_skip: int | None = None,
+        reward_weights: Mapping[str, float] | None = None,
+        reset_noise_scale: float | None = None,
+        randomization: Randomization | Mapping | None = None,
+        asset: str | None = None,
+        solver_iterations: int | None = None,
+        integrator: str | None = None,
+        timestep: float | None = None,
+        terminate_when_unhealthy: bool = True,
+    ):
+        self.episode_length = int(episode_length or self.default_episode_length)
+        self.frame_skip = int(frame_skip or self.default_frame_skip)
+        if self.episode_length < 1 or self.frame_skip < 1:
+            raise ValueError(f"{self.name}: episode_length and frame_skip must be >= 1")
+        weights = dict(self.default_weights)
+        for key, value in (reward_weights or {}).items():
+            if key not in weights:
+                raise ValueError(f"{self.name}: unknown reward term {key!r}; its terms are {sorted(weights)}")
+            weights[key] = float(value)
+        self.reward_weights = weights
+        self.reset_noise_scale = float(
+            self.default_reset_noise_scale if reset_noise_scale is None else reset_noise_scale
+        )
+        if isinstance(randomization, Mapping):
+            randomization = Randomization(**randomization)
+        self.randomization = randomization or Randomization()
+        self.terminate_when_unhealthy = bool(terminate_when_unhealthy)
+        path = Path(asset or self.asset)
+        if not path.is_absolute() and not path.exists():
+            path = ASSETS / path
+        if not path.exists():
+            raise FileNotFoundError(f"{self.name}: asset {path} does not exist")
+        kw = {} if solver_iterations is None else {"solver_iterations": int(solver_iterations)}
+        model = physics.load_mjcf(path, integrator=integrator, **kw)
+        if timestep is not None:
+            model = model.replace(timestep=jnp.asarray(timestep, model.timestep.dtype))
+        self.model: Model = model
+
+    # ---------------------------------------------------------------- subclass interface
+
+    def _reset_qpos_qvel(self, key: jax.Array, model: Model) -> tuple[jax.Array, jax.Array]:
+        """(nq,), (nv,) initial state of a new episode (Gymnasium's ``reset_model``)."""
+        raise NotImplementedError
+
+    def _observe(self, model: Model, data: Data) -> jax.Array:
+        """(obs_size,) observation of ``data`` (Gymnasium's ``_get_obs``)."""
+        raise NotImplementedError
+
+    def _reward(
+        self, model: Model, before: Data, after: Data, action: jax.Array
+    ) -> tuple[dict, jax.Array, dict]:
+        """Weighted reward terms (their sum is the reward), the task's termination flag, and
+        extra metrics of one step. Weights come from ``self.reward_weights`` by term name."""
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------- public API
+
+    @property
+    def dt(self) -> float:
+        """Seconds of simulated time per env step."""
+        return float(self.model.timestep) * self.frame_skip
+
+    @property
+    def action_size(self) -> int:
+        return self.model.nu
+
+    @property
+    def observation_size(self) -> int:
+        data = self._reset_data(jax.random.PRNGKey(0), self.model)
+        return int(jax.eval_shape(lambda: self._observe(self.model, data)).shape[0])
+
+    @property
+    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(nu,), (nu,) the ctrlrange of each actuator, as Gymnasium's action space."""
+        rng = np.asarray(self.model.actuator_ctrlrange, np.float32)
+        return rng[:, 0].copy(), rng[:, 1].copy()
+
+    def reset(self, key: jax.Array) -> State:
+        """A fresh episode drawn from ``key`` (one env; vmap over keys for a batch)."""
+        key, reset_key, param_key = jax.random.split(key, 3)
+        params = self._sample_params(param_key)
+        model = self._model(params)
+        data = self._reset_data(reset_key, model)
+        obs = self._observe(model, data)
+        zero = jnp.zeros((), obs.dtype)
+        no = jnp.zeros((), bool)
+        metrics = {k: zero for k in self.metric_names()}
+        return State(
+            data=data, obs=obs, reward=zero, terminated=no, truncated=no, final_obs=obs,
+            metrics=metrics, episode_return=zero, episode_length=jnp.zeros((), jnp.int32),
+            params=params, rng=key,
+        )  # fmt: skip
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """Advances one env step (``frame_skip`` physics steps) and auto-resets a done episode.
+
+        Args:
+          state: the current state.
+          action: (nu,) controls; as in Gymnasium they are not clipped here (the physics clamps
+            them to ``ctrlrange``; the control cost sees the raw action).
+        Returns:
+          The next state. If the episode ended, ``obs``/``data`` already belong to a new
+          episode and ``final_obs`` is the finished episode's last observation.
+        """
+        model = self._model(state.params)
+        action = jnp.asarray(action, state.obs.dtype)
+        before = state.data
+
+        def substep(data, _):
+            return physics.step(model, data, action), None
+
+        after, _ = jax.lax.scan(substep, before, None, length=self.frame_skip)
+        terms, terminated, extra = self._reward(model, before, after, action)
+        reward = sum(terms.values())
+        obs = self._observe(model, after)
+        diverged = after.diverged | ~jnp.all(jnp.isfinite(obs)) | ~jnp.isfinite(reward)
+        # A diverged env is ended and reset; its NaNs never reach the learner.
+        obs = jnp.where(diverged, 0.0, obs)
+        reward = jnp.where(diverged, 0.0, reward).astype(obs.dtype)
+        terminated = (terminated & self.terminate_when_unhealthy) | diverged
+        prev_done = state.done
+        length = jnp.where(prev_done, 0, state.episode_length) + 1
+        ret = jnp.where(prev_done, 0.0, state.episode_return) + reward
+        truncated = length >= self.episode_length
+        metrics = {f"reward_{k}": jnp.where(diverged, 0.0, v) for k, v in terms.items()}
+        metrics.update({k: jnp.where(diverged, 0.0, v) for k, v in extra.items()})
+        metrics["diverged"] = diverged.astype(obs.dtype)
+        metrics = {k: jnp.asarray(v, obs.dtype) for k, v in metrics.items()}
+
+        # Auto-reset, branch-free: draw a new episode and keep it where this one is done.
+        fresh = self.reset(state.rng)
+        done = terminated | truncated
+        pick = lambda new, old: jnp.where(done, new, old)  # noqa: E731
+        return State(
+            data=jax.tree.map(pick, fresh.data, after),
+            obs=pick(fresh.obs, obs),
+            reward=reward,
+            terminated=terminated,
+            truncated=truncated,
+            final_obs=obs,
+            metrics=metrics,
+            episode_return=ret,
+            episode_length=length,
+            params=jax.tree.map(pick, fresh.params, state.params),
+            rng=jnp.where(done, fresh.rng, jax.random.fold_in(state.rng, 1)),
+        )
+
+    def metric_names(self) -> list[str]:
+        """Names of ``State.metrics`` (fixed per env, so batches have a static structure)."""
+        model, data = self.model, self._reset_data(jax.random.PRNGKey(0), self.model)
+        action = jnp.zeros(self.model.nu, data.qpos.dtype)
+        terms, _, extra = jax.eval_shape(lambda: self._reward(model, data, data, action))
+        return [f"reward_{k}" for k in terms] + list(extra) + ["diverged"]
+
+    # ---------------------------------------------------------------- helpers
+
+    def _reset_data(self, key: jax.Array, model: Model) -> Data:
+        """Data of a new episode with the derived fields ``mj_forward`` gives the observation.
+
+        Smooth dynamics only: at a reset no constraint force acts yet in Gymnasium either
+        (``cfrc_ext`` is zero until the first ``mj_step``), and skipping collision and the
+        solver keeps the auto-reset cheap, since it is evaluated on every step.
+        """
+        qpos, qvel = self._reset_qpos_qvel(key, model)
+        data = physics.make_data(model, qpos=qpos, qvel=qvel)
+        return physics.forward_forces(model, data)
+
+    def _sample_params(self, key: jax.Array) -> dict:
+        r, m = self.randomization, self.model
+        params = {}
+        if not r.enabled:
+            return params
+        k1, k2, k3 = jax.random.split(key, 3)
+        dtype = m.body_mass.dtype
+        if r.mass:
+            params["mass_scale"] = jax.random.uniform(k1, (m.nbody,), dtype, 1 - r.mass, 1 + r.mass)
+        if r.friction:
+            params["friction_scale"] = jax.random.uniform(k2, (), dtype, 1 - r.friction, 1 + r.friction)
+        if r.damping:
+            params["damping_scale"] = jax.random.uniform(k3, (m.nv,), dtype, 1 - r.damping, 1 + r.damping)
+        return params
+
+    def _model(self, params: dict) -> Model:
+        """The model with this env's randomised parameters applied."""
+        m = self.model
+        if "mass_scale" in params:
+            s = params["mass_scale"]
+            m = m.replace(body_mass=m.body_mass * s, body_inertia=m.body_inertia * s[:, None])
+        if "friction_scale" in params:
+            m = m.replace(pair_friction=m.pair_friction * params["friction_scale"])
+        if "damping_scale" in params:
+            m = m.replace(dof_damping=m.dof_damping * params["damping_scale"])
+        return m
+
+    def uniform(self, key: jax.Array, shape, scale: float) -> jax.Array:
+        """Uniform noise in [-scale, scale] in the model's dtype."""
+        return jax.random.uniform(key, shape, self.model.qpos0.dtype, -scale, scale)
+
+    def normal(self, key: jax.Array, shape, scale: float) -> jax.Array:
+        """Gaussian noise with standard deviation ``scale`` in the model's dtype."""
+        return scale * jax.random.normal(key, shape, self.model.qpos0.dtype)
+
+    def body_id(self, name: str) -> int:
+        """Index of the body called ``name`` (static)."""
+        try:
+            return self.model.body_names.index(name)
+        except ValueError:
+            raise ValueError(f"{self.name}: the model has no body {name!r}") from None
+
+    def __repr__(self) -> str:
+        cls = type(self).__name__
+        return f"{cls}({self.name!r}, frame_skip={self.frame_skip}, episode_length={self.episode_length})"

@@ -1,0 +1,50 @@
+"""Environment registry: ``make(name, **overrides)``."""
+
+from __future__ import annotations
+
+from fastrl.envs import locomotion, manipulation
+from fastrl.envs.base import Env
+
+_REGISTRY: dict[str, type[Env]] = {}
+
+
+def register(cls: type[Env]) -> type[Env]:
+    """Adds an ``Env`` subclass under its ``name`` (usable as a class decorator)."""
+    if not cls.name:
+        raise ValueError(f"{cls.__name__} has no name to register under")
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+for _cls in (
+    locomotion.Ant,
+    locomotion.HalfCheetah,
+    locomotion.Hopper,
+    locomotion.Walker2d,
+    locomotion.Humanoid,
+    locomotion.HumanoidStandup,
+    locomotion.Swimmer,
+    manipulation.Reacher,
+    manipulation.Pusher,
+    manipulation.InvertedPendulum,
+    manipulation.InvertedDoublePendulum,
+):
+    register(_cls)
+
+
+def names() -> list[str]:
+    """Registered environment names, sorted."""
+    return sorted(_REGISTRY)
+
+
+def make(name: str, **overrides) -> Env:
+    """Builds the environment ``name``; keyword overrides go to its constructor.
+
+    Raises:
+      ValueError: for an unknown name, listing the registered ones.
+    """
+    try:
+        cls = _REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown environment {name!r}; choose one of: {', '.join(names())}") from None
+    return cls(**overrides)
