@@ -48,8 +48,8 @@ def _check_supported(m: mujoco.MjModel) -> None:
     obj = mujoco.mjtObj
     flags = m.opt.disableflags
     problems = []
+    problems.extend(_tendon_problems(m))
     for count, what in [
-        (m.ntendon, "tendons"),
         (m.neq, "equality constraints"),
         (m.nflex, "flexes"),
         (m.nplugin, "plugins"),
@@ -59,8 +59,10 @@ def _check_supported(m: mujoco.MjModel) -> None:
             problems.append(f"{what} ({count} in the model)")
     if contacts_enabled(m) and np.any((m.geom_condim != 1) & (m.geom_condim != 3)):
         problems.append("contact condim other than 1 or 3 (torsional/rolling friction)")
-    if m.opt.density > 0 or m.opt.viscosity > 0:
-        problems.append("fluid forces (option density/viscosity > 0)")
+    ellipsoid = (m.geom_fluid[:, 0] > 0) & (m.body_mass[m.geom_bodyid] >= mujoco.mjMINVAL)
+    if fluid_enabled(m) and ellipsoid.any():
+        where = _first(m, ellipsoid, obj.mjOBJ_GEOM)
+        problems.append(f"the ellipsoid fluid model ({where} has fluidshape='ellipsoid')")
     if _nonzero(m, "body_gravcomp"):
         problems.append(f"gravity compensation ({_first(m, m.body_gravcomp != 0, obj.mjOBJ_BODY)})")
     if _nonzero(m, "dof_frictionloss") and not flags & _DSBL.mjDSBL_FRICTIONLOSS:
@@ -108,6 +110,44 @@ def _check_supported(m: mujoco.MjModel) -> None:
         problems.append("explicit <contact><pair> elements")
     if problems:
         raise UnsupportedFeatureError("fastrl cannot simulate this model yet: " + "; ".join(problems))
+
+
+def _tendon_problems(m: mujoco.MjModel) -> list[str]:
+    """Tendons that act on the dynamics, each named with what it does.
+
+    fastrl computes no tendon lengths. A tendon without limits, springs, dampers, friction loss,
+    armature or actuators only measures a length (Gymnasium's humanoid has two such fixed
+    tendons), so it is ignored; anything else about a tendon changes the motion and is refused.
+    """
+    flags = m.opt.disableflags
+    actuated = np.zeros(m.ntendon, bool)
+    by_tendon = m.actuator_trntype == int(mujoco.mjtTrn.mjTRN_TENDON)
+    actuated[m.actuator_trnid[by_tendon, 0]] = True
+    stiff = (m.tendon_stiffness != 0) | (m.tendon_springyield != 0)
+    stiff |= np.any(m.tendon_stiffnesspoly != 0, axis=-1)
+    damp = (m.tendon_damping != 0) | np.any(m.tendon_dampingpoly != 0, axis=-1)
+    acts = {
+        "limited": m.tendon_limited.astype(bool) & limits_enabled(m),
+        "stiffness": stiff & (not flags & _DSBL.mjDSBL_SPRING),
+        "damping": damp & (not flags & _DSBL.mjDSBL_DAMPER),
+        "frictionloss": (m.tendon_frictionloss != 0) & (not flags & _DSBL.mjDSBL_FRICTIONLOSS),
+        "armature": m.tendon_armature != 0,
+        "an actuator": actuated,
+    }
+    out = []
+    for i in range(m.ntendon):
+        what = [name for name, mask in acts.items() if mask[i]]
+        if what:
+            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_TENDON, i) or str(i)
+            out.append(f"tendon {name!r} ({', '.join(what)})")
+    return out
+
+
+def fluid_enabled(m: mujoco.MjModel) -> bool:
+    """Whether MuJoCo applies fluid forces: a medium, and not both springs and dampers disabled."""
+    off = _DSBL.mjDSBL_SPRING | _DSBL.mjDSBL_DAMPER
+    medium = m.opt.density > 0 or m.opt.viscosity > 0
+    return bool(medium and (m.opt.disableflags & off) != off)
 
 
 def contacts_enabled(m: mujoco.MjModel) -> bool:
@@ -187,6 +227,13 @@ def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[st
     return out
 
 
+def _fluid_bodies(m: mujoco.MjModel) -> np.ndarray:
+    """(nbody,) bool: bodies MuJoCo's inertia-box fluid model acts on (massless ones are skipped)."""
+    if not fluid_enabled(m):
+        return np.zeros(m.nbody, bool)
+    return (np.arange(m.nbody) > 0) & (m.body_mass >= mujoco.mjMINVAL)
+
+
 # Newton steps per solve. With 8, the Ant under random controls stays within 1 cm of MuJoCo's
 # torso over 1 s in all of 32 sequences (both integrators); with 4 the RK4 median is 1.1 cm with
 # decimetre outliers, with 2 it is 45 cm. More than 8 changes nothing measurable.
@@ -230,7 +277,7 @@ def model_from_mujoco(
         dof_bodyid=i32(m.dof_bodyid), dof_jntid=i32(m.dof_jntid), dof_parentid=i32(m.dof_parentid),
         geom_bodyid=i32(m.geom_bodyid), geom_type=i32(m.geom_type),
         geom_contype=i32(m.geom_contype), geom_conaffinity=i32(m.geom_conaffinity),
-        site_bodyid=i32(m.site_bodyid),
+        site_bodyid=i32(m.site_bodyid), body_fluid=i32(_fluid_bodies(m)),
         actuator_trnid=i32(m.actuator_trnid[:, 0]),
         actuator_gaintype=i32(m.actuator_gaintype), actuator_biastype=i32(m.actuator_biastype),
         actuator_ctrllimited=i32(m.actuator_ctrllimited),
@@ -259,6 +306,7 @@ def model_from_mujoco(
         jnt_solref=f(m.jnt_solref), jnt_solimp=f(m.jnt_solimp), jnt_margin=f(m.jnt_margin),
         body_invweight0=f(m.body_invweight0), dof_invweight0=f(m.dof_invweight0),
         impratio=f(m.opt.impratio),
+        density=f(m.opt.density), viscosity=f(m.opt.viscosity), wind=f(m.opt.wind),
     )  # fmt: skip
 
 

@@ -64,6 +64,8 @@ class Model:
       geom_bodyid, geom_type                   (ngeom,)
       geom_contype, geom_conaffinity           (ngeom,)
       site_bodyid                              (nsite,)
+      body_fluid                               (nbody,) 1 where the inertia-box fluid model acts
+                                               (body mass > 0, density or viscosity > 0)
       actuator_trnid                           (nu,)    the joint each actuator drives
       actuator_gaintype, actuator_biastype     (nu,)    0 fixed/none, 1 affine
       actuator_ctrllimited, forcelimited       (nu,)
@@ -91,6 +93,7 @@ class Model:
       jnt_solref (njnt,2), jnt_solimp (njnt,5), jnt_margin (njnt,)   joint-limit softness
       body_invweight0 (nbody,2), dof_invweight0 (nv,)   MuJoCo's inverse weights (for R)
       impratio ()
+      density (), viscosity (), wind (3,)   the medium of the fluid model (only where body_fluid)
     """
 
     nq: int
@@ -119,6 +122,7 @@ class Model:
     geom_contype: np.ndarray
     geom_conaffinity: np.ndarray
     site_bodyid: np.ndarray
+    body_fluid: np.ndarray
     actuator_trnid: np.ndarray
     actuator_gaintype: np.ndarray
     actuator_biastype: np.ndarray
@@ -176,6 +180,9 @@ class Model:
     body_invweight0: jax.Array
     dof_invweight0: jax.Array
     impratio: jax.Array
+    density: jax.Array
+    viscosity: jax.Array
+    wind: jax.Array
 
     @property
     def npair(self) -> int:

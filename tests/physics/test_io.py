@@ -40,7 +40,10 @@ def test_public_api_shapes():
             ),
             ["limits on a free/ball joint", "'bj'"],
         ),
-        (_xml(extra='<tendon><fixed name="t"><joint joint="j" coef="1"/></fixed></tendon>'), ["tendons"]),
+        (
+            _xml(extra='<tendon><fixed name="t" range="-1 1"><joint joint="j" coef="1"/></fixed></tendon>'),
+            ["tendon 't'", "limited"],
+        ),
         (
             _xml(extra='<actuator><general name="mus" joint="j" dyntype="filter" dynprm="0.1"/></actuator>'),
             ["'mus'", "activation dynamics"],
@@ -61,7 +64,13 @@ def test_public_api_shapes():
             ),
             ["condim"],
         ),
-        (_xml(extra='<option viscosity="0.1"/>'), ["fluid"]),
+        (
+            BASE.format(
+                body='<body><joint type="hinge"/><geom name="fin" size="0.1" fluidshape="ellipsoid"/></body>',
+                extra='<option viscosity="0.1"/>',
+            ),
+            ["ellipsoid fluid model", "'fin'"],
+        ),
     ],
 )
 def test_unsupported_features_raise_clear_errors(xml, words):
