@@ -10,6 +10,7 @@ from fastrl.physics.forward import (
     step,
 )
 from fastrl.physics.io import UnsupportedFeatureError, load_mjcf, make_data, model_from_mujoco
+from fastrl.physics.sensor import cfrc_ext, contact_force
 from fastrl.physics.types import Data, Integrator, JointType, Model
 
 __all__ = [
@@ -19,6 +20,8 @@ __all__ = [
     "JointType",
     "Model",
     "UnsupportedFeatureError",
+    "cfrc_ext",
+    "contact_force",
     "euler",
     "forward",
     "forward_forces",

@@ -21,6 +21,7 @@ from fastrl.physics.types import Data, JointType, Model
 
 _DSBL = mujoco.mjtDisableBit
 MIN_IMP, MAX_IMP = 1e-4, 0.9999  # MuJoCo's mjMINIMP, mjMAXIMP
+CONTACT_CONDIMS = (1, 3)  # frictionless, and a pyramid with two tangents; rows in this order
 
 
 def limited_joints(m: Model) -> np.ndarray:
@@ -33,6 +34,23 @@ def rows_per_contact(m: Model) -> np.ndarray:
     """(ncon,) rows of each candidate contact: 1 frictionless, 2 (condim - 1) for a pyramid."""
     condim = m.pair_condim[contact_layout(m)]
     return np.where(condim == 1, 1, 2 * (condim - 1))
+
+
+def contact_efc_address(m: Model) -> np.ndarray:
+    """(ncon,) the first ``efc`` row of every candidate contact (MuJoCo's ``efc_address``).
+
+    ``make_constraint`` emits the limit rows, then the contacts grouped by condim in
+    ``CONTACT_CONDIMS`` order, each group in contact order.
+    """
+    rows = rows_per_contact(m)
+    condim = m.pair_condim[contact_layout(m)]
+    adr = np.zeros(rows.size, np.int64)
+    start = 2 * limited_joints(m).size
+    for dim in CONTACT_CONDIMS:
+        sel = np.flatnonzero(condim == dim)
+        adr[sel] = start + np.cumsum(rows[sel]) - rows[sel]
+        start += int(rows[sel].sum())
+    return adr
 
 
 def sizes(m: Model) -> tuple[int, int]:
@@ -136,7 +154,7 @@ def make_constraint(m: Model, d: Data) -> Data:
         tran = m.body_invweight0[b1, 0] + m.body_invweight0[b2, 0]
         fric = m.pair_friction[layout]
         condim = m.pair_condim[layout]
-        for dim in (1, 3):
+        for dim in CONTACT_CONDIMS:
             sel = np.flatnonzero(condim == dim)
             if not sel.size:
                 continue

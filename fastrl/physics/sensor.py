@@ -1,0 +1,86 @@
+"""Contact forces read after the step, computed on demand (mj_contactForce, mj_rnePostConstraint).
+
+MuJoCo fills ``cfrc_ext`` only when a sensor needs it; Gymnasium's MuJoCo environments call
+``mj_rnePostConstraint`` after every ``mj_step`` to get it. Here these are plain functions of the
+solved constraint that ``forward`` leaves in ``Data``, not a stage of ``step``: an environment
+calls them on the data ``step`` returns, and training that never reads them does not pay for them.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fastrl.physics import constraint
+from fastrl.physics.collision_driver import contact_layout
+from fastrl.physics.math import cross
+from fastrl.physics.types import Data, Model
+
+
+def contact_force(m: Model, d: Data) -> jax.Array:
+    """Every candidate contact's force in its own contact frame (mj_contactForce).
+
+    The pyramid's edge forces ``f`` (rows ``n + mu_k t_k``, ``n - mu_k t_k``) decode as normal
+    ``sum(f)`` and tangential ``mu_k (f_2k - f_2k+1)`` (mju_decodePyramid); a frictionless
+    contact's one row is its normal force. The force is exerted on geom2's body, along the frame's
+    rows (normal from geom1 to geom2, then the tangents). Inactive contacts carry zero force.
+
+    Args:
+      m: the model.
+      d: data after ``forward`` (or ``step``).
+    Returns:
+      (ncon, 6) ``(normal, tangent1, tangent2, torsion, roll1, roll2)``; the last three are zero,
+      as fastrl's contacts have condim 1 or 3.
+    """
+    layout = contact_layout(m)
+    adr = constraint.contact_efc_address(m)
+    condim = m.pair_condim[layout]
+    out = jnp.zeros((layout.size, 6), d.efc_force.dtype)
+    for dim in constraint.CONTACT_CONDIMS:
+        sel = np.flatnonzero(condim == dim)
+        if not sel.size:
+            continue
+        if dim == 1:
+            out = out.at[sel, 0].set(d.efc_force[adr[sel]])
+            continue
+        edges = d.efc_force[adr[sel, None] + np.arange(2 * (dim - 1))]  # (n, 2 (dim - 1))
+        normal = jnp.sum(edges, -1, keepdims=True)
+        tangent = (edges[:, 0::2] - edges[:, 1::2]) * m.pair_friction[layout[sel], : dim - 1]
+        out = out.at[sel, :dim].set(jnp.concatenate([normal, tangent], -1))
+    return out
+
+
+def cfrc_ext(m: Model, d: Data) -> jax.Array:
+    """External spatial force on every body from its contacts (MuJoCo's ``mjData.cfrc_ext``).
+
+    As mj_rnePostConstraint computes it: each contact's force, turned into world axes, pushes
+    geom2's body and pulls geom1's (equal and opposite), applied at the contact point and expressed
+    as a com-based spatial force, i.e. ``(torque, force)`` with the torque about the centre of mass
+    of the body's whole tree, ``subtree_com[body_rootid[b]]``. The world body gets nothing (row 0
+    is zero). fastrl has no ``xfrc_applied`` and no equality constraints, so contacts are the only
+    external forces.
+
+    It reads the contacts and ``efc_force`` the last ``forward`` left in ``d``: after ``step``, those
+    of the state the step started from (Euler) or of RK4's last stage, exactly what
+    ``mj_rnePostConstraint`` reads after ``mj_step`` (Gymnasium's ``cfrc_ext``).
+
+    Args:
+      m: the model.
+      d: data after ``forward`` (or ``step``).
+    Returns:
+      (nbody, 6) world-oriented ``(torque, force)`` per body, torque about its tree's com.
+    """
+    out = jnp.zeros((m.nbody, 6), d.efc_force.dtype)
+    layout = contact_layout(m)
+    if not layout.size:
+        return out
+    local = contact_force(m, d)[:, :3]
+    force = jnp.sum(d.contact_frame * local[:, :, None], axis=-2)  # frame^T local: world axes
+    for sign, geoms in ((-1.0, m.pair_geom1[layout]), (1.0, m.pair_geom2[layout])):
+        bodies = m.geom_bodyid[geoms]
+        if not bodies.any():  # this side is always the world (the floor): nothing to apply
+            continue
+        arm = d.contact_pos - d.subtree_com[m.body_rootid[bodies]]
+        out = out.at[bodies].add(sign * jnp.concatenate([cross(arm, force), force], -1))
+    return out.at[0].set(0.0)
