@@ -224,6 +224,20 @@ class Env:
             params=params, rng=key,
         )  # fmt: skip
 
+    def reset_to(self, qpos: jax.Array, qvel: jax.Array, key: jax.Array | None = None) -> State:
+        """A state at the given ``qpos``/``qvel`` (e.g. copied from another simulator).
+
+        Args:
+          qpos: (nq,) positions; qvel: (nv,) velocities.
+          key: key for later auto-resets and randomised parameters (default: PRNGKey(0)).
+        """
+        state = self.reset(jax.random.PRNGKey(0) if key is None else key)
+        model = self._model(state.params)
+        data = physics.make_data(model, qpos=qpos, qvel=qvel)
+        data = physics.forward_forces(model, data)
+        obs = self._observe(model, data)
+        return state.replace(data=data, obs=obs, final_obs=obs)
+
     def step(self, state: State, action: jax.Array) -> State:
         """Advances one env step (``frame_skip`` physics steps) and auto-resets a done episode.
 

@@ -1,0 +1,124 @@
+"""Env API: registry, auto-reset, reset statistics, domain randomisation, Gymnasium adapters."""
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from fastrl import envs
+
+
+@pytest.fixture(scope="module")
+def pendulum():
+    return envs.make("inverted_pendulum", episode_length=7)
+
+
+def test_registry_lists_the_suite_and_rejects_unknown_names():
+    expected = {
+        "ant", "halfcheetah", "hopper", "walker2d", "humanoid", "humanoidstandup", "reacher",
+        "swimmer", "pusher", "inverted_pendulum", "inverted_double_pendulum",
+    }  # fmt: skip
+    assert expected <= set(envs.names())
+    with pytest.raises(ValueError, match="unknown environment 'antt'.*ant"):
+        envs.make("antt")
+    with pytest.raises(ValueError, match="unknown reward term 'speed'"):
+        envs.make("halfcheetah", reward_weights={"speed": 1.0})
+
+
+def test_auto_reset_starts_fresh_random_episodes(pendulum):
+    env = pendulum
+    n = 64
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n))
+    step = jax.jit(jax.vmap(env.step))
+    starts, lengths = [np.asarray(state.data.qpos)], []
+    for _ in range(15):
+        prev = state
+        state = step(state, jnp.zeros((n, 1)))
+        done = np.asarray(state.done)
+        # Truncation at the time limit is separate from termination, and counters restart.
+        length = np.asarray(prev.episode_length) * ~np.asarray(prev.done) + 1
+        assert np.all(np.asarray(state.truncated) == (length >= 7))
+        lengths += list(np.asarray(state.episode_length)[done])
+        starts.append(np.asarray(state.data.qpos)[done])
+        # The final observation of a finished episode is kept for bootstrapping.
+        not_done = ~done
+        np.testing.assert_array_equal(np.asarray(state.final_obs)[not_done], np.asarray(state.obs)[not_done])
+        if done.any():
+            assert not np.array_equal(np.asarray(state.final_obs)[done], np.asarray(state.obs)[done])
+    starts = np.concatenate(starts)
+    # Every reset is a new draw, not a replay of the first one.
+    assert len(np.unique(starts.round(7), axis=0)) == len(starts)
+    assert set(lengths) <= set(range(1, 8)) and 7 in lengths
+
+
+def test_reset_noise_has_the_configured_distribution():
+    env = envs.make("halfcheetah")
+    n = 10_000
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(1), n))
+    dq = np.asarray(state.data.qpos - env.model.qpos0)
+    dv = np.asarray(state.data.qvel)
+    s = env.reset_noise_scale  # qpos ~ U(-s, s), qvel ~ s N(0, 1), as in HalfCheetah-v5
+    np.testing.assert_allclose(dq.mean(0), 0.0, atol=4 * s / np.sqrt(3 * n))
+    np.testing.assert_allclose(dq.std(0), s / np.sqrt(3), rtol=0.03)
+    assert dq.min() >= -s and dq.max() <= s
+    np.testing.assert_allclose(dv.mean(0), 0.0, atol=4 * s / np.sqrt(n))
+    np.testing.assert_allclose(dv.std(0), s, rtol=0.03)
+    assert len(np.unique(dq, axis=0)) == n  # 10k distinct initial states
+
+
+def test_domain_randomisation_is_per_env_and_traced():
+    env = envs.make("inverted_pendulum", randomization={"mass": 0.2, "damping": 0.5})
+    reset = jax.jit(jax.vmap(env.reset))
+    state = reset(jax.random.split(jax.random.PRNGKey(2), 256))
+    scale = np.asarray(state.params["mass_scale"])
+    assert scale.shape == (256, env.model.nbody)
+    assert 0.8 <= scale.min() and scale.max() <= 1.2 and scale.std() > 0.05
+    step = jax.jit(jax.vmap(env.step))
+    out = step(state, jnp.ones((256, 1)))
+    # Heavier carts accelerate less under the same force: the parameters reach the physics.
+    v = np.asarray(out.data.qvel[:, 0] - state.data.qvel[:, 0])
+    cart = scale[:, 1] if env.model.body_names[1] else scale[:, 1]
+    assert np.corrcoef(cart, v)[0, 1] < -0.5
+    # New parameters come without recompiling.
+    state2 = reset(jax.random.split(jax.random.PRNGKey(3), 256))
+    step(state2, jnp.ones((256, 1)))
+    assert step._cache_size() == 1
+    with pytest.raises(ValueError, match="half-width"):
+        envs.make("inverted_pendulum", randomization={"mass": 1.5})
+
+
+def test_gym_env_passes_gymnasium_checker():
+    check_env(envs.make_gym("inverted_pendulum"), skip_render_check=True)
+
+
+def test_vector_env_same_step_autoreset_and_async(pendulum):
+    venv = envs.VectorEnv(pendulum, num_envs=6, seed=0)
+    assert isinstance(venv, gymnasium.vector.VectorEnv)
+    assert venv.single_observation_space.shape == (4,)
+    assert venv.action_space.shape == (6, 1)
+    obs, _ = venv.reset(seed=5)
+    obs2, _ = envs.VectorEnv(pendulum, num_envs=6).reset(seed=5)
+    np.testing.assert_array_equal(obs, obs2)  # seeded resets are reproducible
+    assert obs.dtype == np.float64 and venv.observation_space.contains(obs)
+    seen_final = False
+    for _ in range(9):
+        obs, rew, term, trunc, info = venv.step(venv.action_space.sample())
+        assert obs.shape == (6, 4) and rew.shape == term.shape == trunc.shape == (6,)
+        if (term | trunc).any():
+            seen_final = True
+            done = term | trunc
+            assert np.all(info["_final_obs"] == done)
+            assert all(info["final_obs"][i].shape == (4,) for i in np.flatnonzero(done))
+            assert np.all(info["episode"]["l"][done] >= 1)
+    assert seen_final
+    # send/recv on a subset leaves the other envs untouched.
+    before = np.asarray(venv._state.data.qpos).copy()
+    venv.send(np.zeros((2, 1), np.float32), env_ids=[1, 4])
+    obs, *_rest, info = venv.recv()
+    after = np.asarray(venv._state.data.qpos)
+    assert obs.shape == (2, 4) and list(info["env_id"]) == [1, 4]
+    np.testing.assert_array_equal(after[[0, 2, 3, 5]], before[[0, 2, 3, 5]])
+    with pytest.raises(ValueError, match="actions have shape"):
+        venv.step(np.zeros((5, 1)))
