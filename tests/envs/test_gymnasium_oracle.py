@@ -46,7 +46,8 @@ def test_matches_gymnasium_v5(name):
 
     gobs, _ = genv.reset(seed=3)
     data = genv.unwrapped.data
-    state = jax.jit(env.reset_to)(jnp.asarray(data.qpos), jnp.asarray(data.qvel))
+    # Copies: jnp.asarray may alias MuJoCo's buffers, which the next mj_step overwrites.
+    state = jax.jit(env.reset_to)(jnp.array(data.qpos.copy()), jnp.array(data.qvel.copy()))
     np.testing.assert_allclose(state.obs, gobs, rtol=rtol, atol=atol)
     step = jax.jit(env.step)
     rng = np.random.default_rng(0)
