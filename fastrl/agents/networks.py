@@ -1,0 +1,95 @@
+"""Policy and value networks (flax), and the squashed-Gaussian action distribution."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+_ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu, "swish": nn.swish, "elu": nn.elu}
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Sizes of the networks (Hydra group ``network``).
+
+    Fields:
+      policy_hidden   hidden layer widths of the policy MLP
+      value_hidden    hidden layer widths of the value (or Q) MLP
+      activation      one of tanh, relu, swish, elu
+    """
+
+    policy_hidden: tuple[int, ...] = (32, 32, 32, 32)
+    value_hidden: tuple[int, ...] = (256, 256, 256, 256, 256)
+    activation: str = "swish"
+
+    def __post_init__(self):
+        if self.activation not in _ACTIVATIONS:
+            raise ValueError(f"network.activation={self.activation!r}; choose one of {sorted(_ACTIVATIONS)}")
+        for name in ("policy_hidden", "value_hidden"):
+            sizes = tuple(getattr(self, name))
+            if not sizes or any(int(s) < 1 for s in sizes):
+                raise ValueError(f"network.{name}={list(sizes)} must be a non-empty list of positive widths")
+            object.__setattr__(self, name, tuple(int(s) for s in sizes))
+
+
+class MLP(nn.Module):
+    """Fully connected network; the last layer is linear with a small initialisation."""
+
+    hidden: Sequence[int]
+    out: int
+    activation: str = "swish"
+    final_scale: float = 0.01
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        act = _ACTIVATIONS[self.activation]
+        for width in self.hidden:
+            x = act(nn.Dense(width, kernel_init=nn.initializers.lecun_uniform())(x))
+        init = nn.initializers.variance_scaling(self.final_scale, "fan_in", "uniform")
+        return nn.Dense(self.out, kernel_init=init)(x)
+
+
+class TanhGaussian:
+    """A Gaussian squashed by tanh into (-1, 1), then scaled to the action bounds.
+
+    The network outputs ``2 * nu`` numbers: the mean and a pre-softplus scale. Log-probabilities
+    include the tanh change of variables; the entropy is the Gaussian's (before squashing), the
+    usual approximation, which is exact up to a term that does not depend on the scale's sign.
+    """
+
+    min_std = 1e-3
+
+    def __init__(self, low: jax.Array, high: jax.Array):
+        self.center = (high + low) / 2.0
+        self.half = (high - low) / 2.0
+
+    def _split(self, out: jax.Array) -> tuple[jax.Array, jax.Array]:
+        mean, raw = jnp.split(out, 2, axis=-1)
+        return mean, jax.nn.softplus(raw) + self.min_std
+
+    def sample_raw(self, out: jax.Array, key: jax.Array) -> jax.Array:
+        """A pre-tanh sample u; the action is ``postprocess(u)``."""
+        mean, std = self._split(out)
+        return mean + std * jax.random.normal(key, mean.shape, mean.dtype)
+
+    def mode_raw(self, out: jax.Array) -> jax.Array:
+        return self._split(out)[0]
+
+    def postprocess(self, raw: jax.Array) -> jax.Array:
+        return self.center + self.half * jnp.tanh(raw)
+
+    def log_prob(self, out: jax.Array, raw: jax.Array) -> jax.Array:
+        mean, std = self._split(out)
+        z = (raw - mean) / std
+        gauss = -0.5 * z**2 - jnp.log(std) - 0.5 * jnp.log(2 * jnp.pi)
+        # log |d tanh(u)/du| = log(1 - tanh(u)^2), written stably.
+        jac = 2.0 * (jnp.log(2.0) - raw - jax.nn.softplus(-2.0 * raw))
+        return jnp.sum(gauss - jac, axis=-1)
+
+    def entropy(self, out: jax.Array) -> jax.Array:
+        _, std = self._split(out)
+        return jnp.sum(0.5 + 0.5 * jnp.log(2 * jnp.pi) + jnp.log(std), axis=-1)

@@ -1,0 +1,253 @@
+"""The training runner: a host loop over chunks, each chunk ONE compiled program.
+
+A chunk is ``lax.scan(learner.update, updates_per_chunk)`` jitted with the training state
+donated, so the simulator and the learner run without a host round trip per step. Between
+chunks the runner logs (TensorBoard, ``metrics.csv``, a progress line), evaluates the
+deterministic policy, and checkpoints. Ctrl-C asks the run to stop after the chunk in flight;
+it then saves a checkpoint and exits (a second Ctrl-C stops at once, without saving).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fastrl import agents
+from fastrl.checkpoint import Checkpointer, CheckpointError
+from fastrl.config import RunConfig
+
+CHECKPOINT_DIR = "checkpoints"
+logging.getLogger("absl").setLevel(logging.WARNING)  # orbax logs every save step at INFO
+
+
+class _StopFlag:
+    """First SIGINT sets the flag (stop after this chunk); the second raises as usual."""
+
+    def __init__(self):
+        self.set = False
+        self._previous = None
+
+    def __enter__(self):
+        if signal.getsignal(signal.SIGINT) is not None and _main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        if self.set:
+            raise KeyboardInterrupt
+        self.set = True
+        print("\n[fastrl] Ctrl-C: stopping after this chunk and saving a checkpoint (again to abort)",
+              file=sys.stderr, flush=True)  # fmt: skip
+
+    def __exit__(self, *exc):
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+
+def _main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _unalias(tree):
+    """Fresh buffers for every leaf: donation fails when two leaves share one buffer."""
+    return jax.tree.map(lambda x: jnp.array(x, copy=True), tree)
+
+
+def _reduce(metrics: dict) -> dict[str, float]:
+    """Per-chunk scalars from the (updates_per_chunk,) stacked update metrics."""
+    m = {k: np.asarray(v) for k, v in jax.device_get(metrics).items()}
+    out = {}
+    episodes = float(m.pop("train/episodes").sum())
+    ret_sum = float(m.pop("train/episode_return_sum").sum())
+    out["train/episodes"] = episodes
+    if episodes > 0:
+        out["train/episode_return"] = ret_sum / episodes
+    for k, v in m.items():
+        out[k] = float(np.mean(v))
+    return out
+
+
+class _Outputs:
+    """TensorBoard, metrics.csv and the curve PNG of one run folder."""
+
+    def __init__(self, run_dir: Path, cfg: RunConfig, resumed_chunk: int, env_steps: int):
+        self.run_dir, self.cfg = run_dir, cfg
+        self.csv_path = run_dir / "metrics.csv"
+        self.writer = None
+        if cfg.logger.tensorboard:
+            from tensorboardX import SummaryWriter
+
+            self.writer = SummaryWriter(str(run_dir / "tb"), purge_step=env_steps if resumed_chunk else None)
+        if cfg.logger.csv and self.csv_path.exists():
+            self._truncate_csv(resumed_chunk)
+
+    def _truncate_csv(self, chunk: int) -> None:
+        """Drops rows logged after the checkpoint being resumed, so the curve has no duplicates."""
+        with self.csv_path.open() as f:
+            rows = list(csv.DictReader(f))
+        if not rows:
+            return
+        fields = list(rows[0])
+        keep = [r for r in rows if int(r["chunk"]) <= chunk]
+        with self.csv_path.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fields)
+            w.writeheader()
+            w.writerows(keep)
+
+    def log(self, row: dict[str, float]) -> None:
+        step = int(row["env_steps"])
+        if self.writer is not None:
+            for k, v in row.items():
+                if "/" in k and math.isfinite(v):
+                    self.writer.add_scalar(k, v, step)
+            self.writer.flush()
+        if self.cfg.logger.csv:
+            new = not self.csv_path.exists()
+            fields = None if new else next(csv.reader(self.csv_path.open()))
+            fields = fields or list(row)
+            with self.csv_path.open("a", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+                if new:
+                    w.writeheader()
+                w.writerow({k: row.get(k, "") for k in fields})
+
+    def plot(self) -> None:
+        if not (self.cfg.logger.plot and self.cfg.logger.csv and self.csv_path.exists()):
+            return
+        from fastrl.report import plot_run
+
+        plot_run(
+            self.csv_path, self.run_dir / "curve.png", title=f"{self.cfg.env.name} / {self.cfg.algo_name}"
+        )
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def _progress(row: dict, total_steps: int, elapsed: float) -> str:
+    steps = int(row["env_steps"])
+    frac = min(1.0, steps / total_steps)
+    rate = row.get("perf/env_steps_per_s", float("nan"))
+    eta = (total_steps - steps) / rate if rate and rate > 0 else float("nan")
+    bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+    ret = row.get("eval/episode_return", row.get("train/episode_return", float("nan")))
+    which = "eval" if "eval/episode_return" in row else "train"
+    return (
+        f"[{bar}] {100 * frac:5.1f}% {steps:>11,d} steps | {rate:>9,.0f} steps/s | "
+        f"{which} return {ret:9.2f} | {elapsed:7.0f}s elapsed, ETA {eta:6.0f}s"
+    )
+
+
+def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=None) -> dict[str, Any]:
+    """Runs (or resumes) training into ``run_dir``.
+
+    Args:
+      cfg: the typed run config.
+      run_dir: the run's folder (config, checkpoints, logs, curve).
+      resume: continue from the latest checkpoint in ``run_dir``.
+      on_chunk: optional callback ``(chunk, row)`` after every chunk (tests use it).
+    Returns:
+      A summary: status ("done", "stopped", "diverged"), chunks, env_steps, final metrics.
+    """
+    run_dir = Path(run_dir).absolute()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    env = cfg.env.make()
+    steps_per_update = cfg.algo.env_steps_per_update
+    total_updates = max(1, math.ceil(cfg.train.total_env_steps / steps_per_update))
+    k = cfg.train.updates_per_chunk
+    n_chunks = math.ceil(total_updates / k)
+    learner = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, n_chunks * k)
+    ckpt = Checkpointer(run_dir / CHECKPOINT_DIR, keep=cfg.checkpoint.keep)
+    config = cfg.to_dict()
+    (run_dir / "config.json").write_text(json.dumps(config, indent=2))
+
+    state = jax.jit(learner.init)(jax.random.PRNGKey(cfg.seed))
+    chunk, wall = 0, 0.0
+    if resume:
+        state, meta = ckpt.restore(state, config)
+        chunk, wall = int(meta["chunk"]), float(meta["wall_s"])
+        print(f"[fastrl] resumed {run_dir} at chunk {chunk} ({int(meta['env_steps']):,d} env steps)")
+    elif ckpt.latest_step() is not None:
+        raise CheckpointError(
+            f"{run_dir} already holds checkpoints; pass resume=true to continue that run, or choose "
+            "a new run_dir (nothing was overwritten)"
+        )
+    state = _unalias(state)
+
+    def run_chunk(s):
+        return jax.lax.scan(lambda s, _: learner.update(s), s, None, length=k)
+
+    t0 = time.perf_counter()
+    compiled = jax.jit(run_chunk, donate_argnums=0).lower(state).compile()
+    compile_s = time.perf_counter() - t0
+    evaluate = jax.jit(agents.make_evaluator(env, learner.act, cfg.train.eval_envs))
+    print(
+        f"[fastrl] {cfg.env.name} / {cfg.algo_name}: {n_chunks} chunks x {k} updates x "
+        f"{steps_per_update:,d} env steps; chunk compiled in {compile_s:.1f}s; run dir {run_dir}"
+    )
+    out = _Outputs(run_dir, cfg, chunk, int(state.env_steps))
+    status, row, start_chunk = "done", {}, chunk
+    save = lambda: ckpt.save(chunk, state, _meta(config, chunk, state, wall))  # noqa: E731
+    try:
+        with _StopFlag() as stop:
+            while chunk < n_chunks:
+                t = time.perf_counter()
+                new_state, metrics = compiled(state)
+                row = _reduce(metrics)
+                losses = [v for key, v in row.items() if key.startswith("loss/")]
+                if not all(math.isfinite(v) for v in losses):
+                    status, state = "diverged", new_state  # reported, never saved
+                    msg = f"[fastrl] training diverged (non-finite loss) in chunk {chunk + 1}; the last good "
+                    print(msg + "checkpoint is kept. Try a smaller learning rate or batch.", file=sys.stderr)
+                    break
+                state, chunk = new_state, chunk + 1
+                dt = time.perf_counter() - t
+                wall += dt
+                row.update(chunk=chunk, env_steps=int(state.env_steps), wall_s=wall)
+                row["perf/env_steps_per_s"] = k * steps_per_update / dt
+                row["perf/compile_s"] = compile_s
+                every = cfg.train.eval_every
+                if chunk == n_chunks or (every and chunk % every == 0):
+                    key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed + 1), chunk)
+                    ret, length = jax.device_get(evaluate(learner.policy_params(state), key))
+                    row.update({"eval/episode_return": float(ret.mean()),
+                                "eval/episode_return_std": float(ret.std()),
+                                "eval/episode_length": float(length.mean())})  # fmt: skip
+                out.log(row)
+                if cfg.logger.progress:
+                    print(_progress(row, n_chunks * k * steps_per_update, wall), flush=True)
+                if on_chunk is not None:
+                    on_chunk(chunk, row)
+                stopping = stop.set or (
+                    cfg.train.stop_after_chunks is not None
+                    and chunk - start_chunk >= cfg.train.stop_after_chunks
+                )
+                if chunk == n_chunks or stopping or chunk % cfg.checkpoint.every == 0:
+                    save()
+                if stopping:
+                    status = "stopped"
+                    break
+    finally:
+        out.plot()
+        out.close()
+        ckpt.close()
+    return {"status": status, "chunks": chunk, "env_steps": int(state.env_steps), "compile_s": compile_s,
+            "wall_s": wall, "last": row, "run_dir": str(run_dir)}  # fmt: skip
+
+
+def _meta(config: dict, chunk: int, state, wall: float) -> dict:
+    return {"config": config, "chunk": chunk, "env_steps": int(state.env_steps), "wall_s": wall}

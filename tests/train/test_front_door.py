@@ -1,0 +1,160 @@
+"""The training front door: config composition and errors, GAE, runs, checkpoints, resume."""
+
+import os
+import shutil
+import signal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.errors import MissingConfigException
+
+from fastrl import agents, envs
+from fastrl.agents.ppo import gae
+from fastrl.checkpoint import CheckpointError
+from fastrl.config import ConfigError, RunConfig
+from fastrl.train import CONF_DIR, run
+
+QUICK = ["env=inverted_pendulum", "debug=quick", "logger=quiet"]
+
+
+def compose_cfg(overrides):
+    with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
+        return compose("train", overrides=overrides)
+
+
+def typed(overrides):
+    from omegaconf import OmegaConf
+
+    cfg = compose_cfg([*overrides, "run_dir=/unused"])
+    container = OmegaConf.to_container(cfg, resolve=True)
+    for key in ("resume", "run_dir"):
+        container.pop(key)
+    return RunConfig.from_dict(container)
+
+
+def test_gae_matches_a_python_loop():
+    rng = np.random.default_rng(0)
+    t, n, gamma, lam = 12, 5, 0.97, 0.9
+    rewards, values, next_values = (rng.normal(size=(t, n)) for _ in range(3))
+    terminated = rng.random((t, n)) < 0.1
+    done = terminated | (rng.random((t, n)) < 0.1)
+    adv, targets = gae(
+        *(jnp.asarray(x) for x in (rewards, values, next_values, terminated, done)), gamma, lam
+    )
+    expected = np.zeros((t, n))
+    for j in range(n):
+        running = 0.0
+        for i in reversed(range(t)):
+            delta = rewards[i, j] + gamma * (1 - terminated[i, j]) * next_values[i, j] - values[i, j]
+            running = delta + gamma * lam * (1 - done[i, j]) * running
+            expected[i, j] = running
+    np.testing.assert_allclose(adv, expected, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(targets, expected + values, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("env_name", envs.names())
+@pytest.mark.parametrize("algo", sorted(agents.ALGORITHMS))
+def test_every_env_algo_pair_composes(env_name, algo):
+    rc = typed([f"env={env_name}", f"algo={algo}"])
+    assert rc.env.name == env_name and rc.algo_name == algo
+
+
+def test_config_errors_name_the_key_before_compiling():
+    with pytest.raises(ConfigError, match="algo.learning_rate='fast' should be of type float"):
+        typed(["algo.learning_rate=fast"])
+    with pytest.raises(ConfigError, match="num_minibatches=7.*divisors"):
+        typed(["algo.num_envs=64", "algo.unroll_length=10", "algo.num_minibatches=7"])
+    with pytest.raises(ConfigError, match="network.activation='gelu2'"):
+        typed(["network.activation=gelu2"])
+    with pytest.raises(MissingConfigException, match="antt"):
+        typed(["env=antt"])
+
+
+def _weights(run_dir):
+    from fastrl.checkpoint import Checkpointer
+
+    ck = Checkpointer(os.path.join(run_dir, "checkpoints"))
+    step, _ = ck.read_meta()
+    state, _ = ck.restore(_abstract(), typed(QUICK_RESUME).to_dict(), step)
+    ck.close()
+    return step, jax.tree.leaves(state)
+
+
+QUICK_RESUME = [*QUICK, "train.total_env_steps=1024", "train.updates_per_chunk=2"]  # 4 chunks
+
+
+def _abstract():
+    rc = typed(QUICK_RESUME)
+    env = rc.env.make()
+    learner = agents.make_learner(rc.algo_name, rc.algo, env, rc.network, 8)
+    return jax.eval_shape(learner.init, jax.random.PRNGKey(0))
+
+
+def test_resume_2_plus_2_chunks_equals_4_chunks_bit_for_bit(tmp_path):
+    full, split = tmp_path / "full", tmp_path / "split"
+    out = run(compose_cfg([*QUICK_RESUME, f"run_dir={full}"]))
+    assert out["status"] == "done" and out["chunks"] == 4
+    out = run(compose_cfg([*QUICK_RESUME, f"run_dir={split}", "train.stop_after_chunks=2"]))
+    assert out["status"] == "stopped" and out["chunks"] == 2
+    out = run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}/ignored", f"resume={split}"]))
+    assert out["status"] == "done" and out["chunks"] == 4 and out["run_dir"] == str(split)
+    (step_a, a), (step_b, b) = _weights(full), _weights(split)
+    assert step_a == step_b == 4
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    rows = (split / "metrics.csv").read_text().strip().splitlines()
+    assert len(rows) == 1 + 4  # header + one row per chunk, no duplicates after the resume
+    assert (split / "config.json").exists()
+
+
+def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path):
+    def interrupt(chunk, row):
+        if chunk == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    from fastrl.train import runner
+
+    cfg = compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}"])
+    rc = typed(QUICK_RESUME)
+    out = runner.train(rc, tmp_path, on_chunk=interrupt)
+    assert out["status"] == "stopped" and out["chunks"] == 1
+    assert (tmp_path / "checkpoints" / "1").is_dir()
+    del cfg
+
+
+def test_corrupt_or_incompatible_checkpoint_gives_a_clear_error(tmp_path):
+    run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}", "train.stop_after_chunks=1"]))
+    # A different network cannot continue this run: the error names the keys.
+    with pytest.raises(CheckpointError, match=r"network.policy_hidden: \[16\] -> \[8\]"):
+        run(
+            compose_cfg(
+                [*QUICK_RESUME, f"run_dir={tmp_path}/x", f"resume={tmp_path}", "network.policy_hidden=[8]"]
+            )
+        )
+    # A fresh run never overwrites a folder that holds checkpoints.
+    with pytest.raises(CheckpointError, match="already holds checkpoints"):
+        run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}"]))
+    # Corrupt array files: a clear error, and the checkpoint folder is left as it was.
+    step_dir = tmp_path / "checkpoints" / "1"
+    backup = tmp_path / "backup"
+    shutil.copytree(step_dir, backup)
+    for path in (step_dir / "state").rglob("*"):
+        if path.is_file() and path.stat().st_size > 0 and "metadata" not in path.name:
+            path.write_bytes(b"garbage" * 3)
+    with pytest.raises(CheckpointError, match="could not be restored|unreadable"):
+        run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}/y", f"resume={tmp_path}"]))
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["1"]
+
+
+def test_ppo_improves_inverted_pendulum_within_a_minute(tmp_path):
+    out = run(
+        compose_cfg(
+            ["env=inverted_pendulum", "logger=quiet", f"run_dir={tmp_path}", "train.total_env_steps=40000"]
+        )
+    )
+    assert out["status"] == "done"
+    assert out["wall_s"] < 60
+    assert out["last"]["eval/episode_return"] > 100  # a random policy survives ~5-20 steps
