@@ -36,3 +36,9 @@ def test_stability_sweep_quick(tmp_path):
     rows = _run_quick("stability_sweep.py", tmp_path, "stability_sweep_quick.json")
     assert {r["integrator"] for r in rows} == {"euler", "rk4"}
     assert all(0.0 <= r["guard_fraction"] <= r["blowup_fraction"] <= 1.0 for r in rows)
+
+
+def test_bench_envs_quick(tmp_path):
+    result = _run_quick("bench_envs.py", tmp_path, "env_throughput_quick.json")
+    assert all(r["control_steps_per_s"] > 0 and r["diverged"] == 0 for r in result["envs"])
+    assert result["vector"]["ratio"] > 0

@@ -1,4 +1,4 @@
-"""EnvPool ``Ant-v4`` throughput (control steps/s), printed as one JSON line.
+"""EnvPool throughput (control steps/s) of ``Ant-v4`` or any ``--env-id``, as one JSON line.
 
 Run inside the peer venv (see experiments/peers/setup_peers.sh):
 
@@ -54,6 +54,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
+    parser.add_argument("--env-id", default=ENV_ID, help=f"EnvPool task id (default {ENV_ID})")
     parser.add_argument("--num-envs", type=int, default=64)
     parser.add_argument("--seconds", type=float, default=5.0, help="measured stepping time")
     parser.add_argument("--warmup", type=float, default=1.0, help="un-timed stepping before measuring")
@@ -61,14 +62,16 @@ def main() -> None:
     args = parser.parse_args()
 
     n = args.num_envs
-    env = envpool.make_gymnasium(ENV_ID, num_envs=n, batch_size=n, num_threads=NUM_THREADS, seed=args.seed)
+    env = envpool.make_gymnasium(
+        args.env_id, num_envs=n, batch_size=n, num_threads=NUM_THREADS, seed=args.seed
+    )
     config = dict(env.spec.config._asdict())
     space = env.action_space
     rng = np.random.default_rng(args.seed)
     env_ids = np.arange(n, dtype=np.int32)
 
     def actions() -> np.ndarray:
-        return rng.uniform(-1.0, 1.0, size=(n, *space.shape)).astype(space.dtype)
+        return rng.uniform(space.low, space.high, size=(n, *space.shape)).astype(space.dtype)
 
     env.reset()
     t_end = time.perf_counter() + args.warmup
@@ -89,7 +92,7 @@ def main() -> None:
 
     out = {
         "peer": "envpool",
-        "env": ENV_ID,
+        "env": args.env_id,
         "num_envs": n,
         "num_threads": NUM_THREADS,
         "control_steps_per_s": n * calls / wall,
