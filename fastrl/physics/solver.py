@@ -89,7 +89,11 @@ def _newton_step(m: Model, structure, d: Data, a: jax.Array) -> jax.Array:
         slope = alpha * s_m_s + s_m_a + jnp.sum(neg * trial * js)
         curve = s_m_s + jnp.sum(neg * js * js)
         alpha = jnp.maximum(alpha - slope / jnp.maximum(curve, 1e-30), 0.0)
-    return a + alpha * step
+    # The step length carries no gradient: where the iterate has converged the step is zero and
+    # d(alpha) = d(slope) / curve is 0/0 (NaN in reverse mode). With alpha held fixed, the
+    # derivative of a converged Newton iterate is the implicit-function derivative of the
+    # minimiser (the full step is alpha = 1 there), which is what differentiating the solve means.
+    return a + jax.lax.stop_gradient(alpha) * step
 
 
 def solve(m: Model, d: Data) -> Data:
