@@ -166,7 +166,9 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
     run_dir = Path(run_dir).absolute()
     run_dir.mkdir(parents=True, exist_ok=True)
     env = cfg.env.make()
-    steps_per_update = cfg.algo.env_steps_per_update
+    # The learner is built twice: first to learn its env steps per update, then with the run's
+    # total updates (which set learning-rate schedules). Building is cheap; nothing is traced.
+    steps_per_update = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, 1).env_steps_per_update
     total_updates = max(1, math.ceil(cfg.train.total_env_steps / steps_per_update))
     k = cfg.train.updates_per_chunk
     n_chunks = math.ceil(total_updates / k)

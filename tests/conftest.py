@@ -37,3 +37,9 @@ def random_state(mj: mujoco.MjModel, seed: int, qpos_scale=0.3, qvel_scale=1.0):
     qvel = qvel_scale * rng.standard_normal(mj.nv)
     ctrl = rng.uniform(-1, 1, mj.nu)
     return qpos, qvel, ctrl
+
+
+# Tests build the same programs repeatedly (a run and its resumed twin compile identical
+# chunks): JAX's persistent compilation cache turns the repeats into cache hits.
+jax.config.update("jax_compilation_cache_dir", str(pathlib.Path(__file__).parent.parent / ".jax_cache"))
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)

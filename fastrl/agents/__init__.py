@@ -9,11 +9,20 @@ from __future__ import annotations
 
 import dataclasses
 
+from fastrl.agents.apg import APGConfig, UnsuitableEnvError, make_apg
+from fastrl.agents.base import Learner, PolicyParams
+from fastrl.agents.es import ESConfig, make_es
 from fastrl.agents.evaluation import make_evaluator
 from fastrl.agents.networks import NetworkConfig
-from fastrl.agents.ppo import Learner, PolicyParams, PPOConfig, make_ppo
+from fastrl.agents.ppo import PPOConfig, make_ppo
+from fastrl.agents.sac import SACConfig, make_sac
 
-ALGORITHMS = {"ppo": (PPOConfig, make_ppo)}
+ALGORITHMS = {
+    "ppo": (PPOConfig, make_ppo),
+    "sac": (SACConfig, make_sac),
+    "es": (ESConfig, make_es),
+    "apg": (APGConfig, make_apg),
+}
 
 
 def config_class(name: str):
@@ -39,6 +48,13 @@ def config_fields(name: str) -> list[str]:
 
 __all__ = [
     "ALGORITHMS",
+    "APGConfig",
+    "ESConfig",
+    "SACConfig",
+    "UnsuitableEnvError",
+    "make_apg",
+    "make_es",
+    "make_sac",
     "Learner",
     "NetworkConfig",
     "PPOConfig",

@@ -30,14 +30,20 @@ def init(size: int, dtype=jnp.float32) -> RunningStats:
 def update(stats: RunningStats, batch: jax.Array) -> RunningStats:
     """Adds a batch (..., obs_size) with Chan et al.'s parallel combination (stable in float32)."""
     x = batch.reshape(-1, batch.shape[-1]).astype(stats.mean.dtype)
-    n = jnp.asarray(x.shape[0], stats.count.dtype)
     mean_b = jnp.mean(x, axis=0)
-    m2_b = jnp.sum((x - mean_b) ** 2, axis=0)
-    total = stats.count + n
+    return combine(
+        stats, jnp.asarray(x.shape[0], stats.count.dtype), mean_b, jnp.sum((x - mean_b) ** 2, axis=0)
+    )
+
+
+def combine(stats: RunningStats, n: jax.Array, mean_b: jax.Array, m2_b: jax.Array) -> RunningStats:
+    """Adds the moments (count, mean, sum of squared deviations) of another sample."""
+    n = jnp.asarray(n, stats.count.dtype)
+    total = jnp.maximum(stats.count + n, 1.0)
     delta = mean_b - stats.mean
     mean = stats.mean + delta * n / total
     m2 = stats.m2 + m2_b + delta**2 * stats.count * n / total
-    return RunningStats(mean, m2, total)
+    return RunningStats(mean, m2, stats.count + n)
 
 
 def normalize(stats: RunningStats, x: jax.Array, clip: float = 10.0) -> jax.Array:

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import optax
 
 from fastrl.agents import normalizer
+from fastrl.agents.base import Learner, PolicyParams
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
 from fastrl.envs.base import Env, State
 from fastrl.physics.dataclass import pytree_dataclass
@@ -92,18 +93,6 @@ class PPOConfig:
     def minibatch_size(self) -> int:
         return self.batch_size // self.num_minibatches
 
-    @property
-    def env_steps_per_update(self) -> int:
-        return self.batch_size
-
-
-@pytree_dataclass
-class PolicyParams:
-    """Everything a deterministic policy needs: network weights and observation statistics."""
-
-    network: dict
-    obs_stats: normalizer.RunningStats
-
 
 @pytree_dataclass
 class PPOState:
@@ -137,15 +126,6 @@ class Transition(NamedTuple):
     done: jax.Array
     final_obs: jax.Array
     episode_return: jax.Array
-
-
-class Learner(NamedTuple):
-    """A learning algorithm as pure functions (see fastrl/agents/__init__.py)."""
-
-    init: object  # (key) -> state
-    update: object  # (state) -> (state, metrics)
-    policy_params: object  # (state) -> PolicyParams
-    act: object  # (PolicyParams, obs, key | None) -> action; key None = deterministic
 
 
 def gae(
@@ -319,4 +299,7 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
         raw = dist.mode_raw(out) if key is None else dist.sample_raw(out, key)
         return dist.postprocess(raw)
 
-    return Learner(init=init, update=update, policy_params=policy_params, act=act)
+    return Learner(
+        init=init, update=update, policy_params=policy_params, act=act,
+        env_steps_per_update=config.batch_size,
+    )  # fmt: skip

@@ -126,6 +126,10 @@ class Env:
     default_episode_length: int = 1000
     default_weights: Mapping[str, float] = {}
     default_reset_noise_scale: float = 0.0
+    # Whether gradients of the return through the physics are informative (smooth dynamics and
+    # rewards); analytic policy gradients refuse envs without, explaining ``gradient_note``.
+    smooth_gradients: bool = False
+    gradient_note: str = ""
 
     def __init__(
         self,

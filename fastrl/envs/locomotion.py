@@ -249,6 +249,7 @@ class Swimmer(Env):
     default_frame_skip = 4
     default_weights = {"forward": 1.0, "ctrl": 1e-4}
     default_reset_noise_scale = 0.1
+    smooth_gradients = True  # no contacts: viscous fluid forces only
 
     def _reset_qpos_qvel(self, key, model):
         return _uniform_reset(self, key, model, normal_qvel=False)

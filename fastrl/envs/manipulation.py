@@ -26,6 +26,7 @@ class Reacher(Env):
     default_episode_length = 50
     default_weights = {"dist": 1.0, "ctrl": 1.0}
     goal_radius = 0.2
+    smooth_gradients = True
 
     def _reset_qpos_qvel(self, key, model):
         k1, k2, k3, k4 = jax.random.split(key, 4)
@@ -65,6 +66,7 @@ class Pusher(Env):
     default_frame_skip = 5
     default_episode_length = 100
     default_weights = {"near": 0.5, "dist": 1.0, "ctrl": 0.1}
+    gradient_note = "the object only moves through contacts, whose gradients are zero or explosive"
     reset_candidates = 32
     min_goal_distance = 0.17
 
@@ -107,14 +109,17 @@ class InvertedPendulum(Env):
     """Cart-pole balance. Gymnasium ``InvertedPendulum-v5``.
 
     Observation (4): qpos, qvel. Reward: ``survive`` 1 per step while the pole is within 0.2
-    rad of upright. Terminates when it leaves that range (or the state is non-finite).
+    rad of upright. Terminates when it leaves that range (or the state is non-finite). Two
+    smooth shaping terms, off by default (weight 0), give gradient-based learners a signal the
+    0/1 survival reward lacks: ``upright`` -angle^2 and ``centered`` -cart position^2.
     """
 
     name = "inverted_pendulum"
     asset = "inverted_pendulum.xml"
     default_frame_skip = 2
-    default_weights = {"survive": 1.0}
+    default_weights = {"survive": 1.0, "upright": 0.0, "centered": 0.0}
     default_reset_noise_scale = 0.01
+    smooth_gradients = True
 
     def _reset_qpos_qvel(self, key, model):
         k1, k2 = jax.random.split(key)
@@ -127,7 +132,13 @@ class InvertedPendulum(Env):
     def _reward(self, model, before, after, action):
         obs = self._observe(model, after)
         terminated = ~jnp.all(jnp.isfinite(obs)) | (jnp.abs(after.qpos[1]) > 0.2)
-        return {"survive": self.reward_weights["survive"] * ~terminated}, terminated, {}
+        w = self.reward_weights
+        terms = {
+            "survive": w["survive"] * ~terminated,
+            "upright": -w["upright"] * after.qpos[1] ** 2,
+            "centered": -w["centered"] * after.qpos[0] ** 2,
+        }
+        return terms, terminated, {}
 
 
 class InvertedDoublePendulum(Env):
@@ -144,6 +155,7 @@ class InvertedDoublePendulum(Env):
     default_frame_skip = 5
     default_weights = {"alive": 10.0, "distance": 1.0, "velocity": 1.0}
     default_reset_noise_scale = 0.1
+    smooth_gradients = True
 
     def _reset_qpos_qvel(self, key, model):
         k1, k2 = jax.random.split(key)

@@ -19,11 +19,14 @@ from fastrl.physics.types import Data, GeomType, Model
 PRIMITIVES = {
     (GeomType.PLANE, GeomType.SPHERE): (prim.plane_sphere, 1),
     (GeomType.PLANE, GeomType.CAPSULE): (prim.plane_capsule, 2),
+    (GeomType.PLANE, GeomType.CYLINDER): (prim.plane_cylinder, 4),
     (GeomType.PLANE, GeomType.BOX): (prim.plane_box, 4),
     (GeomType.SPHERE, GeomType.SPHERE): (prim.sphere_sphere, 1),
     (GeomType.SPHERE, GeomType.CAPSULE): (prim.sphere_capsule, 1),
+    (GeomType.SPHERE, GeomType.CYLINDER): (prim.sphere_cylinder, 1),
     (GeomType.SPHERE, GeomType.BOX): (prim.sphere_box, 1),
     (GeomType.CAPSULE, GeomType.CAPSULE): (prim.capsule_capsule, 1),
+    (GeomType.CAPSULE, GeomType.CYLINDER): (prim.capsule_cylinder, 1),
 }
 
 

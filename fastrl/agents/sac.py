@@ -1,0 +1,273 @@
+"""Soft Actor-Critic (Haarnoja et al., 2018, with the learned temperature of the 2019 version),
+fused with the simulator.
+
+``update`` steps all ``num_envs`` envs ``env_steps_per_update`` times with the current policy
+(uniform random actions during the first ``learning_starts`` env steps), writes the transitions
+into the on-device replay buffer, then takes ``grad_updates_per_update`` gradient steps on twin
+critics, the actor and the temperature, with Polyak-averaged target critics. The buffer lives
+in the training state, so it is checkpointed and a resumed run is exact. Targets bootstrap from
+``final_obs`` with ``1 - terminated`` (time-limit truncation is not a terminal state).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from fastrl.agents import normalizer, replay
+from fastrl.agents.base import Learner, PolicyParams
+from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
+from fastrl.envs.base import Env, State
+from fastrl.physics.dataclass import pytree_dataclass
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig:
+    """SAC hyperparameters (``algo=sac``).
+
+    Fields:
+      num_envs                 environments stepped in parallel
+      env_steps_per_update     steps of every env per update (num_envs * this transitions)
+      grad_updates_per_update  gradient steps per update (the replay ratio)
+      batch_size               transitions per gradient step
+      buffer_size              replay capacity (transitions)
+      learning_starts          env steps of uniform random actions before learning
+      learning_rate            Adam step size of actor, critics and temperature
+      gamma                    discount
+      tau                      Polyak rate of the target critics
+      init_alpha               initial temperature
+      target_entropy           None: -action_size
+      reward_scaling           rewards are multiplied by this in the critic target
+      normalize_observations   learn running observation statistics and normalise inputs
+      max_grad_norm            global gradient-norm clip (None: off)
+    """
+
+    num_envs: int = 128
+    env_steps_per_update: int = 1
+    grad_updates_per_update: int = 16
+    batch_size: int = 256
+    buffer_size: int = 1_000_000
+    learning_starts: int = 10_000
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    tau: float = 0.005
+    init_alpha: float = 1.0
+    target_entropy: float | None = None
+    reward_scaling: float = 1.0
+    normalize_observations: bool = True
+    max_grad_norm: float | None = None
+
+    def __post_init__(self):
+        for name in (
+            "num_envs",
+            "env_steps_per_update",
+            "grad_updates_per_update",
+            "batch_size",
+            "buffer_size",
+        ):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"algo.{name}={getattr(self, name)} must be >= 1")
+        if self.buffer_size < self.num_envs * self.env_steps_per_update:
+            raise ValueError(
+                f"algo.buffer_size={self.buffer_size} is smaller than one update's transitions "
+                f"(num_envs * env_steps_per_update = {self.num_envs * self.env_steps_per_update})"
+            )
+        if not 0.0 < self.tau <= 1.0 or not 0.0 < self.gamma <= 1.0:
+            raise ValueError("algo.tau and algo.gamma must be in (0, 1]")
+
+
+@pytree_dataclass
+class SACState:
+    """The whole SAC training state.
+
+    Fields:
+      params       {"policy", "q", "target_q", "log_alpha"}
+      opt_state    {"policy", "q", "alpha"} optax states
+      obs_stats    observation normaliser
+      buffer       replay buffer (obs, action in [-1, 1], reward, discount, next_obs)
+      env_state    batched env ``State``
+      rng          (2,) key
+      env_steps    () int32
+      updates      () int32
+    """
+
+    params: dict
+    opt_state: dict
+    obs_stats: normalizer.RunningStats
+    buffer: replay.ReplayBuffer
+    env_state: State
+    rng: jax.Array
+    env_steps: jax.Array
+    updates: jax.Array
+
+
+class _QPair:
+    """Two independent Q networks evaluated together: (obs, action) -> (2, batch)."""
+
+    def __init__(self, hidden, activation):
+        self.net = MLP(hidden, 1, activation, final_scale=1.0)
+
+    def init(self, key, obs, act):
+        k1, k2 = jax.random.split(key)
+        x = jnp.concatenate([obs, act], -1)
+        return {"q1": self.net.init(k1, x), "q2": self.net.init(k2, x)}
+
+    def apply(self, params, obs, act):
+        x = jnp.concatenate([obs, act], -1)
+        return jnp.stack([self.net.apply(params["q1"], x)[..., 0], self.net.apply(params["q2"], x)[..., 0]])
+
+
+def make_sac(config: SACConfig, env: Env, network: NetworkConfig, total_updates: int = 1) -> Learner:
+    """Builds SAC for ``env`` (``total_updates`` is unused: SAC keeps a constant step size)."""
+    del total_updates
+    obs_size, nu = env.observation_size, env.action_size
+    low, high = (jnp.asarray(b) for b in env.action_bounds)
+    dist = TanhGaussian(jnp.full(nu, -1.0), jnp.full(nu, 1.0))  # actions in [-1, 1], then scaled
+    to_env = lambda u: (high + low) / 2 + (high - low) / 2 * u  # noqa: E731
+    policy_net = MLP(network.policy_hidden, 2 * nu, network.activation)
+    q_net = _QPair(network.value_hidden, network.activation)
+    target_entropy = -float(nu) if config.target_entropy is None else config.target_entropy
+
+    def optimizer():
+        clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
+        return optax.chain(*clip, optax.adam(config.learning_rate))
+
+    opt = {"policy": optimizer(), "q": optimizer(), "alpha": optax.adam(config.learning_rate)}
+    env_reset, env_step = jax.vmap(env.reset), jax.vmap(env.step)
+    n_new = config.num_envs * config.env_steps_per_update
+
+    def norm(stats, obs):
+        return normalizer.normalize(stats, obs) if config.normalize_observations else obs
+
+    def init(key: jax.Array) -> SACState:
+        k_pi, k_q, k_env, k_rng = jax.random.split(key, 4)
+        dummy_obs, dummy_act = jnp.zeros((1, obs_size)), jnp.zeros((1, nu))
+        q = q_net.init(k_q, dummy_obs, dummy_act)
+        params = {
+            "policy": policy_net.init(k_pi, dummy_obs),
+            "q": q,
+            "target_q": jax.tree.map(jnp.array, q),
+            "log_alpha": jnp.log(jnp.asarray(config.init_alpha, jnp.float32)),
+        }
+        opt_state = {
+            "policy": opt["policy"].init(params["policy"]),
+            "q": opt["q"].init(params["q"]),
+            "alpha": opt["alpha"].init(params["log_alpha"]),
+        }
+        example = {"obs": jnp.zeros(obs_size), "action": jnp.zeros(nu), "reward": 0.0, "discount": 0.0,
+                   "next_obs": jnp.zeros(obs_size)}  # fmt: skip
+        zero = jnp.zeros((), jnp.int32)
+        return SACState(
+            params=params, opt_state=opt_state, obs_stats=normalizer.init(obs_size),
+            buffer=replay.init(config.buffer_size, example),
+            env_state=env_reset(jax.random.split(k_env, config.num_envs)), rng=k_rng,
+            env_steps=zero, updates=zero,
+        )  # fmt: skip
+
+    def collect(state: SACState, key: jax.Array):
+        random_phase = state.env_steps < config.learning_starts
+
+        def one(env_state, k):
+            k1, k2 = jax.random.split(k)
+            out = policy_net.apply(state.params["policy"], norm(state.obs_stats, env_state.obs))
+            u = dist.postprocess(dist.sample_raw(out, k1))
+            u = jnp.where(random_phase, jax.random.uniform(k2, u.shape, u.dtype, -1.0, 1.0), u)
+            nxt = env_step(env_state, to_env(u))
+            discount = 1.0 - nxt.terminated.astype(jnp.float32)
+            tr = {"obs": env_state.obs, "action": u, "reward": nxt.reward, "discount": discount,
+                  "next_obs": nxt.final_obs}  # fmt: skip
+            return nxt, (tr, nxt.done, nxt.episode_return)
+
+        keys = jax.random.split(key, config.env_steps_per_update)
+        return jax.lax.scan(one, state.env_state, keys)
+
+    def critic_loss(q_params, params, stats, batch, key):
+        obs, next_obs = norm(stats, batch["obs"]), norm(stats, batch["next_obs"])
+        out = policy_net.apply(params["policy"], next_obs)
+        raw = dist.sample_raw(out, key)
+        next_u = dist.postprocess(raw)
+        next_q = jnp.min(q_net.apply(params["target_q"], next_obs, next_u), axis=0)
+        alpha = jnp.exp(params["log_alpha"])
+        soft = next_q - alpha * dist.log_prob(out, raw)
+        target = batch["reward"] * config.reward_scaling + config.gamma * batch["discount"] * soft
+        q = q_net.apply(q_params, obs, batch["action"])
+        loss = jnp.mean((q - jax.lax.stop_gradient(target)[None]) ** 2)
+        return loss, jnp.mean(q)
+
+    def actor_loss(pi_params, params, stats, batch, key):
+        obs = norm(stats, batch["obs"])
+        out = policy_net.apply(pi_params, obs)
+        raw = dist.sample_raw(out, key)
+        log_prob = dist.log_prob(out, raw)
+        q = jnp.min(q_net.apply(params["q"], obs, dist.postprocess(raw)), axis=0)
+        alpha = jnp.exp(params["log_alpha"])
+        return jnp.mean(alpha * log_prob - q), log_prob
+
+    def grad_step(carry, key):
+        params, opt_state, stats, buf = carry
+        k_batch, k_q, k_pi = jax.random.split(key, 3)
+        batch = replay.sample(buf, k_batch, config.batch_size)
+        (q_loss, q_mean), g = jax.value_and_grad(critic_loss, has_aux=True)(
+            params["q"], params, stats, batch, k_q
+        )
+        upd, opt_q = opt["q"].update(g, opt_state["q"], params["q"])
+        q = optax.apply_updates(params["q"], upd)
+        params = {**params, "q": q}
+        (pi_loss, log_prob), g = jax.value_and_grad(actor_loss, has_aux=True)(
+            params["policy"], params, stats, batch, k_pi
+        )
+        upd, opt_pi = opt["policy"].update(g, opt_state["policy"], params["policy"])
+        policy = optax.apply_updates(params["policy"], upd)
+        entropy_gap = jax.lax.stop_gradient(-jnp.mean(log_prob) - target_entropy)
+        a_grad = entropy_gap  # d/dlog_alpha of -log_alpha * (log_prob + target) averaged
+        upd, opt_a = opt["alpha"].update(a_grad, opt_state["alpha"], params["log_alpha"])
+        log_alpha = optax.apply_updates(params["log_alpha"], upd)
+        target_q = optax.incremental_update(q, params["target_q"], config.tau)
+        params = {"policy": policy, "q": q, "target_q": target_q, "log_alpha": log_alpha}
+        info = {"critic": q_loss, "actor": pi_loss, "alpha": jnp.exp(log_alpha), "q_mean": q_mean,
+                "entropy": -jnp.mean(log_prob)}  # fmt: skip
+        return (params, {"policy": opt_pi, "q": opt_q, "alpha": opt_a}, stats, buf), info
+
+    def update(state: SACState) -> tuple[SACState, dict]:
+        rng, k_collect, k_grad = jax.random.split(state.rng, 3)
+        env_state, (tr, done, ep_ret) = collect(state, k_collect)
+        flat = jax.tree.map(lambda x: x.reshape((n_new,) + x.shape[2:]), tr)
+        buf = replay.insert(state.buffer, flat)
+        stats = (
+            normalizer.update(state.obs_stats, tr["obs"])
+            if config.normalize_observations
+            else state.obs_stats
+        )
+        env_steps = state.env_steps + n_new
+        keys = jax.random.split(k_grad, config.grad_updates_per_update)
+        (params, opt_state, _, _), info = jax.lax.scan(
+            grad_step, (state.params, state.opt_state, stats, buf), keys
+        )
+        # No learning until the random warm-up has filled the buffer (masked, branch-free).
+        ready = (env_steps >= config.learning_starts) & (buf.size >= config.batch_size)
+        keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(ready, a, b), new, old)  # noqa: E731
+        params, opt_state = keep(params, state.params), keep(opt_state, state.opt_state)
+        done = done.astype(jnp.float32)
+        metrics = {f"loss/{k}": jnp.mean(v) for k, v in info.items()}
+        metrics["train/episode_return_sum"] = jnp.sum(ep_ret * done)
+        metrics["train/episodes"] = jnp.sum(done)
+        metrics["train/reward_mean"] = jnp.mean(tr["reward"])
+        metrics["train/buffer_size"] = buf.size.astype(jnp.float32)
+        new = SACState(
+            params=params, opt_state=opt_state, obs_stats=stats, buffer=buf, env_state=env_state, rng=rng,
+            env_steps=env_steps, updates=state.updates + 1,
+        )  # fmt: skip
+        return new, metrics
+
+    def policy_params(state: SACState) -> PolicyParams:
+        return PolicyParams(network=state.params["policy"], obs_stats=state.obs_stats)
+
+    def act(pp: PolicyParams, obs: jax.Array, key: jax.Array | None = None) -> jax.Array:
+        out = policy_net.apply(pp.network, norm(pp.obs_stats, obs))
+        raw = dist.mode_raw(out) if key is None else dist.sample_raw(out, key)
+        return to_env(dist.postprocess(raw))
+
+    return Learner(init=init, update=update, policy_params=policy_params, act=act, env_steps_per_update=n_new)

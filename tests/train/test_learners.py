@@ -1,0 +1,97 @@
+"""SAC, ES and APG: unit oracles (replay buffer, ES gradient, APG gradient) and exact resume."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fastrl import agents, envs
+from fastrl.agents import replay
+from fastrl.agents.es import centered_ranks, es_gradient
+
+from .test_front_door import _weights_of, compose_cfg, run
+
+
+def test_replay_buffer_matches_a_python_ring_buffer():
+    cap, rng = 10, np.random.default_rng(0)
+    buf = replay.init(cap, {"x": jnp.zeros(2), "r": 0.0})
+    ref = [None] * cap
+    ptr = size = 0
+    for n in (3, 4, 5, 7, 1):
+        x = jnp.asarray(rng.normal(size=(n, 2)), jnp.float32)
+        batch = {"x": x, "r": jnp.arange(n, dtype=jnp.float32)}
+        buf = jax.jit(replay.insert)(buf, batch)
+        for i in range(n):
+            ref[ptr] = (np.asarray(batch["x"][i]), float(batch["r"][i]))
+            ptr, size = (ptr + 1) % cap, min(size + 1, cap)
+        assert int(buf.ptr) == ptr and int(buf.size) == size
+        for i in range(size):
+            np.testing.assert_array_equal(buf.data["x"][i], ref[i][0])
+            assert float(buf.data["r"][i]) == ref[i][1]
+    # Sampling only returns stored items, and covers them.
+    small = replay.insert(replay.init(cap, {"v": 0.0}), {"v": jnp.arange(1.0, 5.0)})
+    drawn = np.asarray(replay.sample(small, jax.random.PRNGKey(0), 2000)["v"])
+    assert set(np.unique(drawn)) == {1.0, 2.0, 3.0, 4.0}
+
+
+def test_es_gradient_estimate_matches_the_true_gradient_on_a_quadratic():
+    dim, sigma, pairs = 5, 0.05, 20000
+    a = jnp.linspace(0.5, 2.0, dim)
+    theta = jnp.linspace(-1.0, 1.0, dim)
+    f = lambda x: -jnp.sum(a * x**2, axis=-1)  # noqa: E731
+    eps = jax.random.normal(jax.random.PRNGKey(0), (pairs, dim))
+    fitness = f(theta + sigma * jnp.concatenate([eps, -eps]))
+    est = es_gradient(fitness, eps, sigma)
+    true = -2 * a * theta
+    np.testing.assert_allclose(est, true, atol=0.05 * float(jnp.linalg.norm(true)))
+    # Centred ranks keep the ascent direction.
+    shaped = es_gradient(centered_ranks(fitness), eps, sigma)
+    assert float(jnp.dot(shaped, true)) / float(jnp.linalg.norm(shaped) * jnp.linalg.norm(true)) > 0.9
+    np.testing.assert_allclose(centered_ranks(jnp.array([3.0, 1.0, 2.0])), [0.5, -0.5, 0.0])
+
+
+def test_apg_gradient_is_finite_and_matches_finite_differences():
+    horizon = 10
+
+    def ret(gain):
+        def one(carry, _):
+            s, total = carry
+            action = jnp.tanh(gain @ jnp.concatenate([s.data.qpos, s.data.qvel]))[None]
+            s = env.step(s, action)
+            return (s, total + s.reward), None
+
+        (_, total), _ = jax.lax.scan(one, (state, 0.0), None, length=horizon)
+        return total
+
+    with jax.enable_x64(True):  # the model is built in float64 too, for finite differences
+        env = envs.make("inverted_pendulum", reward_weights={"upright": 1.0, "centered": 0.1})
+        state = env.reset(jax.random.PRNGKey(0))
+        gain = jnp.array([0.3, 2.0, 0.1, 0.5], jnp.float64)
+        grad = jax.grad(ret)(gain)
+        assert np.all(np.isfinite(grad))
+        h = 1e-5
+        fd = [(ret(gain.at[i].add(h)) - ret(gain.at[i].add(-h))) / (2 * h) for i in range(4)]
+        np.testing.assert_allclose(grad, fd, rtol=1e-4, atol=1e-7)
+
+
+def test_apg_refuses_envs_with_useless_gradients():
+    env = envs.make("hopper")
+    with pytest.raises(agents.UnsuitableEnvError, match="hopper.*algo=ppo.*allow_unsuitable"):
+        agents.make_apg(agents.APGConfig(), env, agents.NetworkConfig())
+
+
+@pytest.mark.parametrize(
+    "algo,env_name", [("sac", "inverted_pendulum"), ("es", "inverted_pendulum"), ("apg", "inverted_pendulum")]
+)
+def test_exact_resume(tmp_path, algo, env_name):
+    base = [f"algo={algo}", f"env={env_name}", "debug=quick", "logger=quiet", "train.updates_per_chunk=1"]
+    # 4 updates each: sac 16 envs x 1 step, es 8 members x 20 steps, apg 8 envs x 8 steps.
+    base.append(f"train.total_env_steps={ {'sac': 64, 'es': 640, 'apg': 256}[algo] }")
+    full = run(compose_cfg([*base, f"run_dir={tmp_path}/full"]))
+    part = run(compose_cfg([*base, f"run_dir={tmp_path}/split", "train.stop_after_chunks=2"]))
+    assert part["status"] == "stopped" and full["chunks"] > 2
+    done = run(compose_cfg([*base, f"run_dir={tmp_path}/x", f"resume={tmp_path}/split"]))
+    assert done["chunks"] == full["chunks"]
+    a, b = _weights_of(tmp_path / "full"), _weights_of(tmp_path / "split")
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
