@@ -236,28 +236,41 @@ def _cylinder_rate(p, d, radius, half):
     return jnp.where(out > 0, outside_rate, inside_rate)
 
 
-def _bisection_steps(dtype) -> int:
-    """Halvings of a unit bracket (static): to float32's resolution, and to 1e-12 in float64,
-    far below MuJoCo's own GJK/EPA tolerance (each halving costs compile and run time)."""
-    return min(int(jnp.finfo(dtype).nmant) + 2, 40)
+def _section_search(descending, lo, hi, points=15):
+    """Where a monotone test flips in the bracket [lo, hi] (any shape): the point at which
+    ``descending(t)`` (t of shape lo.shape + (points,)) stops being True.
+
+    Each round tests ``points`` evenly spaced points as one vector op and keeps the
+    (points + 1)-th of the bracket where the test flips: log2(points + 1) bits a round, a
+    quarter of bisection's sequential rounds. Rounds continue to float32's resolution, or to
+    1e-12 of the bracket in float64, far below MuJoCo's own GJK/EPA tolerance (they are
+    unrolled, and each costs compile and run time).
+    """
+    bits = min(int(jnp.finfo(lo.dtype).nmant) + 2, 40)
+    splits = points + 1
+    frac = jnp.arange(1, splits, dtype=lo.dtype) / splits
+    for _ in range(-(-bits // int(np.log2(splits)))):
+        width = hi - lo
+        below = jnp.sum(descending(lo[..., None] + width[..., None] * frac), axis=-1)
+        lo, hi = lo + width * below / splits, lo + width * (below + 1) / splits
+    return 0.5 * (lo + hi)
 
 
 def _segment_cylinder_nearest(a, d, radius, half):
     """Parameter t in [0, 1] of the point of segment ``a + t d`` (cylinder frame) with the least
-    signed distance to the cylinder, by bisection on the sign of its rate.
+    signed distance to the cylinder, by section search on the sign of its rate.
 
     Where the minimum is flat (a segment parallel to a cap or to the axis), two brackets find
     both ends of the flat stretch and t is its middle: one contact in the middle of a line
     contact, rather than at whichever end rounding favours.
     """
     flat = 100 * jnp.finfo(a.dtype).eps * jnp.sqrt(dot(d, d))
-    threshold = jnp.stack([-flat, flat])  # left end: stop descending; right end: start rising
-    lo, hi = jnp.zeros(2, a.dtype), jnp.ones(2, a.dtype)
-    for _ in range(_bisection_steps(a.dtype)):
-        mid = 0.5 * (lo + hi)
-        descending = _cylinder_rate(a + mid[:, None] * d, d, radius, half) < threshold
-        lo, hi = jnp.where(descending, mid, lo), jnp.where(descending, hi, mid)
-    return 0.25 * jnp.sum(lo + hi)
+    threshold = jnp.stack([-flat, flat])[:, None]  # left end: stop descending; right: start rising
+
+    def descending(t):
+        return _cylinder_rate(a + t[..., None] * d, d, radius, half) < threshold
+
+    return jnp.mean(_section_search(descending, jnp.zeros(2, a.dtype), jnp.ones(2, a.dtype)))
 
 
 def _overlap(n, a, b, radius, half):
@@ -272,7 +285,7 @@ def _least_overlap_across(a, b, radius, half, samples=32):
 
     On that circle of directions the whole segment supports, and the overlap is the distance
     to the boundary of an elliptic stadium (the cylinder seen along the segment), which can have
-    several local minima: the best of ``samples`` directions is refined by bisection on the
+    several local minima: the best of ``samples`` directions is refined by section search on the
     derivative along the arc to its two neighbours. The arc is parametrised by the chord between
     them (no trigonometry in the loop: it would make XLA's compile time explode).
     """
@@ -287,17 +300,17 @@ def _least_overlap_across(a, b, radius, half, samples=32):
     best = jnp.argmin(_overlap(ring, mid, mid, radius, half))
     n_lo, n_hi = ring[(best - 1) % samples], ring[(best + 1) % samples]
     chord = n_hi - n_lo
-    lo, hi = jnp.zeros((), dtype), jnp.ones((), dtype)
-    for _ in range(_bisection_steps(dtype)):
-        t = 0.5 * (lo + hi)
-        n = n_lo + t * chord  # not unit: the overlap is homogeneous of degree one
-        n_xy = jnp.sqrt(n[0] ** 2 + n[1] ** 2)
+
+    def descending(t):
+        n = n_lo + t[..., None] * chord  # not unit: the overlap is homogeneous of degree one
+        n_xy = jnp.sqrt(n[..., 0] ** 2 + n[..., 1] ** 2)
         radial = radius / jnp.where(n_xy > 0, n_xy, 1.0)
-        grad = mid + jnp.stack([radial * n[0], radial * n[1], half * jnp.sign(n[2])])
+        grad = mid + jnp.stack([radial * n[..., 0], radial * n[..., 1], half * jnp.sign(n[..., 2])], -1)
         # d/dt of overlap(n / |n|), times |n|^3: Euler's identity gives overlap(n) = grad . n.
-        rate = dot(grad, chord) * dot(n, n) - dot(grad, n) * dot(n, chord)
-        lo, hi = jnp.where(rate < 0, t, lo), jnp.where(rate < 0, hi, t)
-    return _normalize(n_lo + 0.5 * (lo + hi) * chord)[0]
+        return dot(grad, chord) * dot(n, n) - dot(grad, n) * dot(n, chord) < 0
+
+    t = _section_search(descending, jnp.zeros((), dtype), jnp.ones((), dtype))
+    return _normalize(n_lo + t * chord)[0]
 
 
 def _least_overlap(a, b, radius, half):
@@ -368,7 +381,7 @@ def capsule_cylinder(c_pos, c_mat, c_size, y_pos, y_mat, y_size):
     the cylinder, and while they are apart the contact is their closest points, inflated by the
     capsule's radius; once the segment reaches the cylinder (within half the margin), EPA on the
     full shapes gives the minimum translation. Both are computed here exactly, in the cylinder's
-    frame: the closest point by bisection along the segment (the cylinder's signed distance is
+    frame: the closest point by section search along the segment (the cylinder's signed distance is
     convex), the translation from a few candidate directions (``_least_overlap``). MuJoCo's own
     answer is only as exact as its ``ccd_tolerance`` (at the default 1e-6 its normals err by up
     to 1e-3 when deep). Unlike MuJoCo, this never adds contacts: MuJoCo's multi-CCD (on by

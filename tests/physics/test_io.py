@@ -51,10 +51,10 @@ def test_public_api_shapes():
         (
             BASE.format(
                 body='<geom name="floor" type="plane" size="1 1 1"/>'
-                '<body><freejoint/><geom name="can" type="cylinder" size="0.1 0.1"/></body>',
+                '<body><freejoint/><geom name="egg" type="ellipsoid" size="0.1 0.1 0.2"/></body>',
                 extra="",
             ),
-            ["collision plane-cylinder", "'floor'", "'can'"],
+            ["collision plane-ellipsoid", "'floor'", "'egg'"],
         ),
         (
             BASE.format(
@@ -87,8 +87,8 @@ def test_disabling_contacts_and_limits_drops_their_rows():
     assert sizes(physics.load_mjcf(limited)) == (0, 2)
     xml = _xml(joint=' range="-1 1" limited="true"', extra='<option><flag limit="disable"/></option>')
     assert sizes(physics.load_mjcf(xml)) == (0, 0)
-    ball = '<geom type="plane" size="1 1 1"/><body><freejoint/><geom type="cylinder" size="0.1 0.1"/></body>'
-    off = BASE.format(body=ball, extra='<option><flag contact="disable"/></option>')
+    egg = '<geom type="plane" size="1 1 1"/><body><freejoint/><geom type="ellipsoid" size=".1 .1 .2"/></body>'
+    off = BASE.format(body=egg, extra='<option><flag contact="disable"/></option>')
     assert physics.load_mjcf(off).npair == 0
 
 
