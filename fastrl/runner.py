@@ -28,7 +28,9 @@ from fastrl.checkpoint import Checkpointer, CheckpointError
 from fastrl.config import RunConfig
 
 CHECKPOINT_DIR = "checkpoints"
-logging.getLogger("absl").setLevel(logging.WARNING)  # orbax logs every save step at INFO
+# Orbax logs every save step at INFO, JAX its backend probing: keep the run's output readable.
+for _name in ("absl", "jax._src.xla_bridge"):
+    logging.getLogger(_name).setLevel(logging.WARNING)
 
 
 class _StopFlag:
