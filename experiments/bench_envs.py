@@ -103,10 +103,12 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS, help="results folder")
     parser.add_argument("--envs", nargs="*", default=None, help="subset of env names")
+    parser.add_argument("--batches", type=int, nargs="*", default=[1024, 4096], help="batch sizes")
+    parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
     args = parser.parse_args()
     names = args.envs or (["inverted_pendulum"] if args.quick else envs.names())
-    batches = [8] if args.quick else [1024, 4096]
-    steps = 2 if args.quick else 20
+    batches = [8] if args.quick else args.batches
+    steps = 2 if args.quick else args.steps
     rows = []
     for name in names:
         for batch in batches:
