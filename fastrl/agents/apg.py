@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import optax
 
 from fastrl.agents import normalizer
-from fastrl.agents.base import Learner, PolicyParams
+from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
 from fastrl.envs.base import Env, State
 from fastrl.physics.dataclass import pytree_dataclass
@@ -112,8 +112,7 @@ def make_apg(config: APGConfig, env: Env, network: NetworkConfig, total_updates:
     optimizer = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.learning_rate))
     env_reset, env_step = jax.vmap(env.reset), jax.vmap(env.step)
 
-    def norm(stats, obs):
-        return normalizer.normalize(stats, obs) if config.normalize_observations else obs
+    norm = observation_normalizer(config.normalize_observations)
 
     def init(key: jax.Array) -> APGState:
         k_pi, k_env, k_rng = jax.random.split(key, 3)
@@ -169,10 +168,7 @@ def make_apg(config: APGConfig, env: Env, network: NetworkConfig, total_updates:
     def policy_params(state: APGState) -> PolicyParams:
         return PolicyParams(network=state.params, obs_stats=state.obs_stats)
 
-    def act(pp: PolicyParams, obs: jax.Array, key: jax.Array | None = None) -> jax.Array:
-        out = policy_net.apply(pp.network, norm(pp.obs_stats, obs))
-        raw = dist.mode_raw(out) if key is None else dist.sample_raw(out, key)
-        return dist.postprocess(raw)
+    act = make_act(policy_net, dist, norm)
 
     return Learner(init=init, update=update, policy_params=policy_params, act=act,
                    env_steps_per_update=config.num_envs * config.horizon)  # fmt: skip

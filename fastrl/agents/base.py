@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
+
+import jax
 
 from fastrl.agents import normalizer
 from fastrl.physics.dataclass import pytree_dataclass
@@ -32,3 +35,24 @@ class Learner(NamedTuple):
     policy_params: object
     act: object
     env_steps_per_update: int
+
+
+def observation_normalizer(enabled: bool) -> Callable[[normalizer.RunningStats, jax.Array], jax.Array]:
+    """``norm(stats, obs)``: the normalised observation, or ``obs`` itself when disabled."""
+
+    def norm(stats: normalizer.RunningStats, obs: jax.Array) -> jax.Array:
+        return normalizer.normalize(stats, obs) if enabled else obs
+
+    return norm
+
+
+def make_act(policy_net, dist, norm, to_env: Callable[[jax.Array], jax.Array] | None = None):
+    """``act(policy_params, obs, key=None)``: the policy's mode (key None) or a sample, in env units."""
+
+    def act(pp: PolicyParams, obs: jax.Array, key: jax.Array | None = None) -> jax.Array:
+        out = policy_net.apply(pp.network, norm(pp.obs_stats, obs))
+        raw = dist.mode_raw(out) if key is None else dist.sample_raw(out, key)
+        action = dist.postprocess(raw)
+        return action if to_env is None else to_env(action)
+
+    return act

@@ -18,7 +18,7 @@ import optax
 from jax.flatten_util import ravel_pytree
 
 from fastrl.agents import normalizer
-from fastrl.agents.base import Learner, PolicyParams
+from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
 from fastrl.envs.base import Env
 from fastrl.physics.dataclass import pytree_dataclass
@@ -99,8 +99,7 @@ def make_es(config: ESConfig, env: Env, network: NetworkConfig, total_updates: i
     horizon = env.episode_length
     pop = config.population_size
 
-    def norm(stats, obs):
-        return normalizer.normalize(stats, obs) if config.normalize_observations else obs
+    norm = observation_normalizer(config.normalize_observations)
 
     def init(key: jax.Array) -> ESState:
         k_pi, k_rng = jax.random.split(key)
@@ -161,10 +160,7 @@ def make_es(config: ESConfig, env: Env, network: NetworkConfig, total_updates: i
     def policy_params(state: ESState) -> PolicyParams:
         return PolicyParams(network=unravel(state.theta), obs_stats=state.obs_stats)
 
-    def act(pp: PolicyParams, obs: jax.Array, key: jax.Array | None = None) -> jax.Array:
-        out = policy_net.apply(pp.network, norm(pp.obs_stats, obs))
-        raw = dist.mode_raw(out) if key is None else dist.sample_raw(out, key)
-        return dist.postprocess(raw)
+    act = make_act(policy_net, dist, norm)
 
     return Learner(init=init, update=update, policy_params=policy_params, act=act,
                    env_steps_per_update=pop * horizon)  # fmt: skip

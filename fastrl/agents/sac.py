@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import optax
 
 from fastrl.agents import normalizer, replay
-from fastrl.agents.base import Learner, PolicyParams
+from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
 from fastrl.envs.base import Env, State
 from fastrl.physics.dataclass import pytree_dataclass
@@ -139,8 +139,7 @@ def make_sac(config: SACConfig, env: Env, network: NetworkConfig, total_updates:
     env_reset, env_step = jax.vmap(env.reset), jax.vmap(env.step)
     n_new = config.num_envs * config.env_steps_per_update
 
-    def norm(stats, obs):
-        return normalizer.normalize(stats, obs) if config.normalize_observations else obs
+    norm = observation_normalizer(config.normalize_observations)
 
     def init(key: jax.Array) -> SACState:
         k_pi, k_q, k_env, k_rng = jax.random.split(key, 4)
@@ -265,9 +264,6 @@ def make_sac(config: SACConfig, env: Env, network: NetworkConfig, total_updates:
     def policy_params(state: SACState) -> PolicyParams:
         return PolicyParams(network=state.params["policy"], obs_stats=state.obs_stats)
 
-    def act(pp: PolicyParams, obs: jax.Array, key: jax.Array | None = None) -> jax.Array:
-        out = policy_net.apply(pp.network, norm(pp.obs_stats, obs))
-        raw = dist.mode_raw(out) if key is None else dist.sample_raw(out, key)
-        return to_env(dist.postprocess(raw))
+    act = make_act(policy_net, dist, norm, to_env)
 
     return Learner(init=init, update=update, policy_params=policy_params, act=act, env_steps_per_update=n_new)
