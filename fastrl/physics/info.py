@@ -35,9 +35,10 @@ def summary_lines(m: Model) -> list[str]:
         f"actuators       {m.nu}",
         f"geoms           {m.ngeom} ({fmt(geoms)})",
         f"contact pairs   {m.npair} kept of {all_pairs} geom pairs ({fmt(pairs)})",
-        f"contacts        {ncon} candidates (fixed count, active when within margin)",
+        f"contacts        {ncon} candidates (fixed count, active when within margin); "
+        f"rows for the {constraint.contact_slots(m)} deepest (nconmax {m.nconmax})",
         f"limited joints  {nlim}",
-        f"constraint rows {nefc} ({2 * nlim} limit + {nefc - 2 * nlim} contact, pyramidal cone)",
+        f"constraint rows {nefc} ({nlim} limit + {nefc - nlim} contact, pyramidal cone)",
         f"solver          {'none traced' if nefc == 0 else f'Newton, {m.solver_iterations} iterations'}",
         f"integrator      {m.summary().split('integrator ')[1]}",
     ]

@@ -9,6 +9,7 @@ import mujoco
 import numpy as np
 
 from fastrl.physics.collision_driver import PRIMITIVES
+from fastrl.physics.constraint import contact_slots, default_nconmax
 from fastrl.physics.constraint import sizes as constraint_sizes
 from fastrl.physics.types import Data, Integrator, JointType, Model
 
@@ -95,6 +96,10 @@ def _check_supported(m: mujoco.MjModel) -> None:
     limited = m.jnt_limited.astype(bool) & (m.jnt_type <= JointType.BALL)
     if limited.any() and not flags & (_DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT):
         problems.append(f"limits on a free/ball joint ({_first(m, limited, obj.mjOBJ_JOINT)})")
+    narrow = m.jnt_limited.astype(bool) & (m.jnt_range[:, 1] - m.jnt_range[:, 0] < 2 * m.jnt_margin)
+    if narrow.any() and not flags & (_DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT):
+        where = _first(m, narrow, obj.mjOBJ_JOINT)
+        problems.append(f"a joint range narrower than twice its margin ({where}: both limits active)")
     if contacts_enabled(m):
         for g1, g2 in candidate_geom_pairs(m):
             key = (int(m.geom_type[g1]), int(m.geom_type[g2]))
@@ -241,11 +246,16 @@ DEFAULT_SOLVER_ITERATIONS = 8
 
 
 def model_from_mujoco(
-    m: mujoco.MjModel, integrator: str | None = None, solver_iterations: int = DEFAULT_SOLVER_ITERATIONS
+    m: mujoco.MjModel,
+    integrator: str | None = None,
+    solver_iterations: int = DEFAULT_SOLVER_ITERATIONS,
+    nconmax: int | None = None,
 ) -> Model:
     """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
     if solver_iterations < 1:
         raise ValueError(f"solver_iterations={solver_iterations}; it must be at least 1")
+    if nconmax is not None and nconmax < 1:
+        raise ValueError(f"nconmax={nconmax}; it must be at least 1")
     _check_supported(m)
     if integrator is not None:
         if integrator not in _INTEGRATORS:
@@ -263,6 +273,9 @@ def model_from_mujoco(
     mixed = _mix_pair_params(m, pairs)
     g1 = np.array([p[0] for p in pairs], np.int32)
     g2 = np.array([p[1] for p in pairs], np.int32)
+    if nconmax is None:
+        ncand = sum(PRIMITIVES[(int(m.geom_type[a]), int(m.geom_type[b]))][1] for a, b in pairs)
+        nconmax = m.nconmax if m.nconmax > 0 else default_nconmax(ncand)
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
     f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
@@ -284,7 +297,7 @@ def model_from_mujoco(
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
         pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
-        solver_iterations=int(solver_iterations),
+        solver_iterations=int(solver_iterations), nconmax=int(nconmax),
         integrator=int(integ), disableflags=int(m.opt.disableflags),
         body_names=_names(m, obj.mjOBJ_BODY, m.nbody), jnt_names=_names(m, obj.mjOBJ_JOINT, m.njnt),
         geom_names=_names(m, obj.mjOBJ_GEOM, m.ngeom), site_names=_names(m, obj.mjOBJ_SITE, m.nsite),
@@ -314,6 +327,7 @@ def load_mjcf(
     path_or_xml: str | os.PathLike,
     integrator: str | None = None,
     solver_iterations: int = DEFAULT_SOLVER_ITERATIONS,
+    nconmax: int | None = None,
 ) -> Model:
     """Compiles an MJCF file (or XML string) with MuJoCo's compiler into a fastrl ``Model``.
 
@@ -324,10 +338,13 @@ def load_mjcf(
       path_or_xml: a path to an ``.xml`` file, or the XML text itself.
       integrator: ``"euler"`` or ``"rk4"`` to override the model's ``<option integrator>``.
       solver_iterations: the constraint solver's static iteration count (Newton steps).
+      nconmax: contact slots, the most contacts that get constraint rows at once (the deepest
+        candidates); default ``<size nconmax>`` if the MJCF sets it, else
+        ``constraint.default_nconmax``.
     Returns:
       The ``Model``; float parameters are float32 unless ``jax_enable_x64`` is on.
     """
-    return model_from_mujoco(_compile(path_or_xml), integrator, solver_iterations)
+    return model_from_mujoco(_compile(path_or_xml), integrator, solver_iterations, nconmax)
 
 
 def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
@@ -346,6 +363,7 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
             raise ValueError(f"{name} has shape {value.shape}; this model needs ({n},)")
     eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (nb, 3, 3))
     ncon, nefc = constraint_sizes(model)
+    nslot = contact_slots(model)
     return Data(
         qpos=qpos, qvel=qvel, ctrl=ctrl, time=z(), qfrc_applied=z(nv), qacc_warmstart=z(nv),
         xpos=z(nb, 3), xquat=z(nb, 4).at[:, 0].set(1.0), xmat=eye, xipos=z(nb, 3), ximat=eye,
@@ -355,7 +373,8 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
         qfrc_spring=z(nv), qfrc_damper=z(nv), qfrc_passive=z(nv), actuator_length=z(nu),
         actuator_velocity=z(nu), actuator_force=z(nu), qfrc_actuator=z(nv), qfrc_smooth=z(nv),
         qacc=z(nv), qacc_smooth=z(nv), contact_dist=z(ncon), contact_pos=z(ncon, 3),
-        contact_frame=z(ncon, 3, 3), efc_J=z(nefc, nv), efc_pos=z(nefc), efc_aref=z(nefc),
+        contact_frame=z(ncon, 3, 3), ncon=jnp.zeros((), jnp.int32),
+        contact_id=jnp.zeros(nslot, jnp.int32), efc_J=z(nefc, nv), efc_pos=z(nefc), efc_aref=z(nefc),
         efc_D=z(nefc), efc_force=z(nefc), qfrc_constraint=z(nv),
         diverged=jnp.zeros((), bool),
     )  # fmt: skip

@@ -26,29 +26,36 @@ def contact_force(m: Model, d: Data) -> jax.Array:
     contact's one row is its normal force. The force is exerted on geom2's body, along the frame's
     rows (normal from geom1 to geom2, then the tangents). Inactive contacts carry zero force.
 
+    Candidates without a contact slot (``Data.contact_id``) have no rows and get zero force.
+
     Args:
       m: the model.
       d: data after ``forward`` (or ``step``).
     Returns:
-      (ncon, 6) ``(normal, tangent1, tangent2, torsion, roll1, roll2)``; the last three are zero,
-      as fastrl's contacts have condim 1 or 3.
+      (ncon, 6) ``(normal, tangent1, tangent2, torsion, roll1, roll2)`` per candidate contact;
+      the last three are zero, as fastrl's contacts have condim 1 or 3.
     """
     layout = contact_layout(m)
     adr = constraint.contact_efc_address(m)
-    condim = m.pair_condim[layout]
-    out = jnp.zeros((layout.size, 6), d.efc_force.dtype)
-    for dim in constraint.CONTACT_CONDIMS:
-        sel = np.flatnonzero(condim == dim)
-        if not sel.size:
-            continue
+    slots = []
+    start = 0
+    for dim, _, nslot in constraint.contact_groups(m):
+        a = adr[start : start + nslot]
+        start += nslot
         if dim == 1:
-            out = out.at[sel, 0].set(d.efc_force[adr[sel]])
+            slots.append(jnp.pad(d.efc_force[a][:, None], ((0, 0), (0, 5))))
             continue
-        edges = d.efc_force[adr[sel, None] + np.arange(2 * (dim - 1))]  # (n, 2 (dim - 1))
+        edges = d.efc_force[a[:, None] + np.arange(2 * (dim - 1))]  # (n, 2 (dim - 1))
         normal = jnp.sum(edges, -1, keepdims=True)
-        tangent = (edges[:, 0::2] - edges[:, 1::2]) * m.pair_friction[layout[sel], : dim - 1]
-        out = out.at[sel, :dim].set(jnp.concatenate([normal, tangent], -1))
-    return out
+        pair = jnp.asarray(layout, jnp.int32)[d.contact_id[start - nslot : start]]
+        tangent = (edges[:, 0::2] - edges[:, 1::2]) * m.pair_friction[pair, : dim - 1]
+        slots.append(jnp.pad(jnp.concatenate([normal, tangent], -1), ((0, 0), (0, 6 - dim))))
+    if not slots:
+        return jnp.zeros((layout.size, 6), d.efc_force.dtype)
+    force = jnp.concatenate(slots)  # (nslot, 6)
+    # Back to candidates: a one-hot sum over slots (a handful), cheaper than a scatter on CPU.
+    onehot = (d.contact_id[:, None] == jnp.arange(layout.size)).astype(force.dtype)
+    return sum(onehot[k][:, None] * force[k][None, :] for k in range(force.shape[0]))
 
 
 def cfrc_ext(m: Model, d: Data) -> jax.Array:

@@ -73,6 +73,8 @@ class Model:
       pair_geom1, pair_geom2, pair_condim      (npair,) geom pairs that can touch (type1 <= type2)
       cone                                     0 pyramidal, 1 elliptic friction cone
       solver_iterations                        static iteration count of the constraint solver
+      nconmax                                  contact slots: rows exist for the nconmax deepest
+                                               candidate contacts (per condim group)
       integrator                               Integrator
       disableflags                             MuJoCo's mjtDisableBit mask
       body_names, jnt_names, geom_names, site_names, actuator_names   tuples of str
@@ -134,6 +136,7 @@ class Model:
     pair_condim: np.ndarray
     cone: int
     solver_iterations: int
+    nconmax: int
     integrator: int
     disableflags: int
     body_names: tuple
@@ -216,10 +219,14 @@ class Data:
                   qfrc_passive (nv,)  actuator_length (nu,)  actuator_velocity (nu,)
                   actuator_force (nu,)  qfrc_actuator (nv,)  qfrc_smooth (nv,)  qacc (nv,)
                   qacc_smooth (nv,)  acceleration without constraints
-    Contacts:     contact_dist (ncon,)  contact_pos (ncon,3)  contact_frame (ncon,3,3) (rows: normal,
-                  tangents); candidates of the static pair table, active where dist < margin
+    Contacts:     contact_dist (ncand,)  contact_pos (ncand,3)  contact_frame (ncand,3,3) (rows:
+                  normal, tangents); candidates of the static pair table, active where
+                  dist < margin.  ncon () int32: how many are active (mjData.ncon)
+                  contact_id (nslot,) int32: the candidate held by each contact slot (the
+                  nconmax deepest, see constraint.py); only slots have constraint rows
     Constraints:  efc_J (nefc,nv)  efc_pos (nefc,)  efc_aref (nefc,)  efc_D (nefc,) (= 1/R; 0 on
-                  rows beyond their margin)  efc_force (nefc,)  qfrc_constraint (nv,)
+                  rows beyond their margin)  efc_force (nefc,)  qfrc_constraint (nv,); rows:
+                  one per limited joint, then the contact slots' rows
     Health:       diverged ()  True once the state has been non-finite or beyond bounds
     """
 
@@ -260,6 +267,8 @@ class Data:
     contact_dist: jax.Array
     contact_pos: jax.Array
     contact_frame: jax.Array
+    ncon: jax.Array
+    contact_id: jax.Array
     efc_J: jax.Array
     efc_pos: jax.Array
     efc_aref: jax.Array

@@ -84,7 +84,7 @@ def test_disabling_contacts_and_limits_drops_their_rows():
     from fastrl.physics.constraint import sizes
 
     limited = _xml(joint=' range="-1 1" limited="true"')
-    assert sizes(physics.load_mjcf(limited)) == (0, 2)
+    assert sizes(physics.load_mjcf(limited)) == (0, 1)  # one row per limited joint
     xml = _xml(joint=' range="-1 1" limited="true"', extra='<option><flag limit="disable"/></option>')
     assert sizes(physics.load_mjcf(xml)) == (0, 0)
     egg = '<geom type="plane" size="1 1 1"/><body><freejoint/><geom type="ellipsoid" size=".1 .1 .2"/></body>'
@@ -120,7 +120,8 @@ def test_info_cli_prints_scene_summary(capsys):
     info.main([str(__import__("pathlib").Path(physics.__file__).parents[1] / "assets" / "ant.xml")])
     out = capsys.readouterr().out
     assert "13 kept of 91 geom pairs (12 plane-capsule, 1 plane-sphere)" in out
-    assert "116 (16 limit + 100 contact" in out
+    assert "25 candidates" in out and "rows for the 8 deepest (nconmax 8)" in out
+    assert "40 (8 limit + 32 contact" in out
     with pytest.raises(SystemExit) as err:
         info.main(["no/such.xml"])
     assert err.value.code == 2

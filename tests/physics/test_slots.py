@@ -1,0 +1,94 @@
+"""Contact slots (rows only for the deepest candidates), one row per limited joint, and the
+Newton solver staying put once converged."""
+
+from __future__ import annotations
+
+import importlib
+import pathlib
+
+import jax
+import mujoco
+import numpy as np
+import pytest
+
+from fastrl import physics
+from fastrl.physics import constraint
+
+fwd = importlib.import_module("fastrl.physics.forward")
+ANT = str(pathlib.Path(physics.__file__).parents[1] / "assets" / "ant.xml")
+
+
+def _walk(mj, steps, seed=0):
+    """MuJoCo states along a random-control walk of the Ant from its start pose."""
+    md = mujoco.MjData(mj)
+    rng = np.random.default_rng(seed)
+    for _ in range(steps):
+        md.ctrl[:] = rng.uniform(-1, 1, mj.nu)
+        mujoco.mj_step(mj, md)
+        yield md
+
+
+def _data(m, md):
+    copy = lambda x: np.array(x, copy=True)  # noqa: E731  (MuJoCo reuses its buffers)
+    d = physics.make_data(m, qpos=copy(md.qpos), qvel=copy(md.qvel), ctrl=copy(md.ctrl))
+    return d.replace(qacc_warmstart=copy(md.qacc_warmstart))
+
+
+def test_slots_hold_the_contacts_mujoco_makes_rows_for(x64):
+    """Along a walk with falls, ``ncon`` equals MuJoCo's contact count, every contact within its
+    margin has a slot, and ``qacc`` equals MuJoCo's (the rows are MuJoCo's rows)."""
+    mj = mujoco.MjModel.from_xml_path(ANT)
+    mj.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    m = physics.model_from_mujoco(mj)
+    assert constraint.contact_slots(m) == 8 < constraint.sizes(m)[0] == 25
+    forward = jax.jit(lambda d: fwd.forward(m, d))
+    seen = 0
+    for md in _walk(mj, 80):
+        mujoco.mj_forward(mj, md)
+        d = forward(_data(m, md))
+        assert int(d.ncon) == md.ncon
+        within = np.flatnonzero(np.asarray(d.contact_dist) < 0)
+        assert set(within) <= set(np.asarray(d.contact_id).tolist())
+        np.testing.assert_allclose(d.qacc, md.qacc, rtol=0, atol=1e-7)
+        seen = max(seen, md.ncon)
+    assert seen >= 2, "the walk never made more than one contact"
+
+
+def test_too_few_slots_keep_the_deepest_contacts(x64):
+    """With 2 slots for a box lying flat (4 corner contacts), the slots hold the two deepest."""
+    xml = (
+        '<mujoco><worldbody><geom type="plane" size="5 5 .1"/>'
+        '<body pos="0 0 0.09" euler="3 0 0"><freejoint/><geom type="box" size=".2 .1 .1"/></body>'
+        "</worldbody></mujoco>"
+    )
+    m = physics.load_mjcf(xml, nconmax=2)
+    d = jax.jit(lambda d: fwd.forward(m, d))(physics.make_data(m))
+    dist = np.asarray(d.contact_dist)
+    assert int(d.ncon) == 4
+    assert sorted(np.asarray(d.contact_id).tolist()) == sorted(np.argsort(dist)[:2].tolist())
+    assert d.efc_J.shape[0] == 2 * 4
+
+
+def test_converged_newton_iterate_stays_put(x64):
+    """Many more Newton iterations than needed give MuJoCo's ``qacc`` to rounding: a converged
+    iterate is not thrown off by the line search (its step is rounding noise)."""
+    mj = mujoco.MjModel.from_xml_path(ANT)
+    mj.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    for iterations in (8, 40):
+        m = physics.model_from_mujoco(mj, solver_iterations=iterations)
+        forward = jax.jit(lambda d, m=m: fwd.forward(m, d))
+        for i, md in enumerate(_walk(mj, 40)):
+            if i % 4 == 0 and md.ncon:
+                mujoco.mj_forward(mj, md)
+                np.testing.assert_allclose(forward(_data(m, md)).qacc, md.qacc, rtol=0, atol=1e-7)
+
+
+def test_bad_slot_counts_and_narrow_ranges_are_refused():
+    with pytest.raises(ValueError, match="nconmax=0"):
+        physics.load_mjcf(ANT, nconmax=0)
+    xml = (
+        '<mujoco><worldbody><body><joint type="hinge" range="-0.01 0.01" limited="true" margin="0.1"/>'
+        '<geom type="sphere" size=".1"/></body></worldbody></mujoco>'
+    )
+    with pytest.raises(physics.UnsupportedFeatureError, match="narrower than twice its margin"):
+        physics.load_mjcf(xml)
