@@ -4,8 +4,9 @@
     python experiments/bench_contacts.py --quick     # tiny, for CI (peers skipped if absent)
 
 Control step 0.05 s. fastrl runs its Ant asset (a) as Gymnasium/EnvPool do, RK4 at 0.01 s x 5,
-and (b) with semi-implicit Euler at 0.01 s x 5; both with the default solver iterations, under a
-jitted scan of vmapped steps with fresh random actions each control step. Peers run from
+(b) with semi-implicit Euler at 0.01 s x 5, both with the default 8 solver iterations, and (c) with
+the settings ``env=ant algo=ppo`` trains with (``conf/experiment/ant_ppo.yaml``: Euler, 5
+iterations), under a jitted scan of vmapped steps with fresh random actions each control step. Peers run from
 ``.venv-peers`` (``bash experiments/peers/setup_peers.sh``): EnvPool ``Ant-v4`` with 2 threads and
 Brax's ``ant`` with its mjx, generalized, spring and positional backends at their own defaults.
 Writes ``experiments/results/contacts_throughput.{md,json,png}``.
@@ -34,8 +35,8 @@ RESULTS = ROOT / "experiments" / "results"
 QPOS0 = np.array([0, 0, 0.75, 1, 0, 0, 0, 0, 1, 0, -1, 0, -1, 0, 1.0])
 
 
-def bench_fastrl(integrator: str, batch: int, control_steps: int, substeps: int = 5) -> dict:
-    m = physics.load_mjcf(ANT, integrator=integrator)
+def bench_fastrl(integrator: str, batch: int, control_steps: int, iterations: int = 8, substeps: int = 5) -> dict:
+    m = physics.load_mjcf(ANT, integrator=integrator, solver_iterations=iterations)
     key = jax.random.PRNGKey(0)
     qvel = 0.1 * jax.random.normal(key, (batch, m.nv))
     data = jax.vmap(lambda v: physics.make_data(m, qpos=QPOS0, qvel=v))(qvel)
@@ -55,7 +56,7 @@ def bench_fastrl(integrator: str, batch: int, control_steps: int, substeps: int 
     out = jax.block_until_ready(compiled(out, ctrl))
     wall = time.perf_counter() - t0
     return {
-        "engine": f"fastrl {integrator} 0.01x{substeps}",
+        "engine": f"fastrl {integrator} 0.01x{substeps}, {iterations} iters",
         "batch": batch,
         "control_steps_per_s": batch * control_steps / wall,
         "compile_s": compile_s,
@@ -119,12 +120,15 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     args = parser.parse_args()
-    fastrl_batches = [16] if args.quick else [256, 1024, 4096]
+    fastrl_batches = [16] if args.quick else [64, 256, 1024, 4096, 8192]
     control_steps = 2 if args.quick else 10
+    from omegaconf import OmegaConf
+
+    shipped = OmegaConf.load(ROOT / "conf" / "experiment" / "ant_ppo.yaml").env
     rows = []
-    for integrator in ("rk4", "euler"):
+    for integrator, iterations in (("rk4", 8), ("euler", 8), (shipped.integrator, shipped.solver_iterations)):
         for b in fastrl_batches:
-            rows.append(bench_fastrl(integrator, b, control_steps))
+            rows.append(bench_fastrl(integrator, b, control_steps, iterations))
             print(rows[-1], flush=True)
     if not args.quick:
         for n in (16, 64, 256):

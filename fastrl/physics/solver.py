@@ -7,9 +7,12 @@ MuJoCo's soft constraints turn the constrained dynamics into the unconstrained c
 with ``a0`` the unconstrained acceleration (pyramidal contacts and limits; ``D = 1/R``). The
 cost is piecewise quadratic, so Newton's method finds the exact minimiser once it has the right
 active set; it is MuJoCo's default for that reason, and with a static iteration count the
-solution should stop changing before the count runs out. Measured on the Ant under random
-actions, 8 steps from a warm start match MuJoCo's converged solution (4 did not, in contact
-transitions); conjugate gradients and projected Gauss-Seidel have not been measured here yet.
+solution should stop changing before the count runs out. Iteration counts: the default is 8
+(``io.DEFAULT_SOLVER_ITERATIONS``) for every model; MuJoCo's own Newton solver (tolerance 1e-8)
+needs at most 4 iterations in 99.7% and 5 in 99.99% of 20k random-walk Ant steps, and the Ant is
+trained with 5 (``conf/experiment/ant_ppo.yaml``): with 5, all 32 random-control sequences of the
+Ant oracle test match the converged solver's to 1e-12 m, with 4 one of them drifts apart, with 3
+most do. Conjugate gradients and projected Gauss-Seidel have not been measured here yet.
 Each step solves with ``H = M + J^T diag(D * active) J`` (see
 ``hessian_structure``) and then runs a few 1-D Newton steps on the exact piecewise-quadratic line
 cost. The iteration counts are static (``Model.solver_iterations``, ``LINESEARCH_ITERATIONS``), so

@@ -96,16 +96,29 @@ def test_joint_limit_holds_under_actuation(integrator, x64):
     assert np.all(np.abs(ours[-500:, 0] - stop) < 0.005)
 
 
-def _ant(integrator):
+def _shipped_ant_settings() -> tuple[str, int]:
+    """The integrator and solver iterations ``env=ant algo=ppo`` trains with."""
+    from omegaconf import OmegaConf
+
+    conf = OmegaConf.load(pathlib.Path(__file__).parents[2] / "conf" / "experiment" / "ant_ppo.yaml")
+    return conf.env.integrator, conf.env.solver_iterations
+
+
+# Both integrators at the default iteration count, and the settings the Ant is trained with.
+ANT_CASES = [(i, None) for i in INTEGRATORS] + [_shipped_ant_settings()]
+
+
+def _ant(integrator, iterations=None):
     mj = mujoco.MjModel.from_xml_path(ANT)
     mj.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4 if integrator == "rk4" else 0
-    return mj, physics.model_from_mujoco(mj)
+    kw = {} if iterations is None else {"solver_iterations": iterations}
+    return mj, physics.model_from_mujoco(mj, **kw)
 
 
-@pytest.mark.parametrize("integrator", INTEGRATORS)
-def test_ant_settles_like_mujoco(integrator, x64):
+@pytest.mark.parametrize("integrator, iterations", ANT_CASES)
+def test_ant_settles_like_mujoco(integrator, iterations, x64):
     """Dropped from 0.75 m with zero controls: rest height within 2 mm, attitude 0.01 rad."""
-    mj, m = _ant(integrator)
+    mj, m = _ant(integrator, iterations)
     md = mujoco.MjData(mj)
     for _ in range(300):
         mujoco.mj_step(mj, md)
@@ -117,11 +130,11 @@ def test_ant_settles_like_mujoco(integrator, x64):
     assert float(d.qpos[2]) > 0.3  # standing on its legs
 
 
-@pytest.mark.parametrize("integrator", INTEGRATORS)
-def test_ant_random_controls_track_mujoco(integrator, x64):
+@pytest.mark.parametrize("integrator, iterations", ANT_CASES)
+def test_ant_random_controls_track_mujoco(integrator, iterations, x64):
     """32 sequences of 20 random control steps (5 substeps each) from the settled pose:
     the median horizontal distance between fastrl's and MuJoCo's torso stays under 2 cm."""
-    mj, m = _ant(integrator)
+    mj, m = _ant(integrator, iterations)
     md = mujoco.MjData(mj)
     for _ in range(300):
         mujoco.mj_step(mj, md)
