@@ -35,7 +35,9 @@ RESULTS = ROOT / "experiments" / "results"
 QPOS0 = np.array([0, 0, 0.75, 1, 0, 0, 0, 0, 1, 0, -1, 0, -1, 0, 1.0])
 
 
-def bench_fastrl(integrator: str, batch: int, control_steps: int, iterations: int = 8, substeps: int = 5) -> dict:
+def bench_fastrl(
+    integrator: str, batch: int, control_steps: int, iterations: int = 8, substeps: int = 5
+) -> dict:
     m = physics.load_mjcf(ANT, integrator=integrator, solver_iterations=iterations)
     key = jax.random.PRNGKey(0)
     qvel = 0.1 * jax.random.normal(key, (batch, m.nv))
