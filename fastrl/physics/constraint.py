@@ -220,12 +220,14 @@ def make_constraint(m: Model, d: Data) -> Data:
             ids.append(idx)
             pair = jnp.asarray(layout, jnp.int32)[idx]
             pos = d.contact_pos[idx]
-            mask2 = jnp.asarray(ancestors[b2_all], dtype)[idx]
-            jac_p = _point_jacobian(d, mask2, d.subtree_com[jnp.asarray(m.body_rootid[b2_all])[idx]], pos)
+
+            def slot_jacobian(bodies, idx=idx, pos=pos):  # bodies of all candidates -> the slots'
+                mask = jnp.asarray(ancestors[bodies], dtype)[idx]
+                return _point_jacobian(d, mask, d.subtree_com[jnp.asarray(m.body_rootid[bodies])[idx]], pos)
+
+            jac_p = slot_jacobian(b2_all)
             if moving1:
-                mask1 = jnp.asarray(ancestors[b1_all], dtype)[idx]
-                com1 = d.subtree_com[jnp.asarray(m.body_rootid[b1_all])[idx]]
-                jac_p = jac_p - _point_jacobian(d, mask1, com1, pos)
+                jac_p = jac_p - slot_jacobian(b1_all)
             jac_c = matmul(d.contact_frame[idx], jac_p)  # rows: normal, tangent1, tangent2
             common = (d.contact_dist[idx], m.pair_margin[pair], m.pair_solref[pair], m.pair_solimp[pair])
             tran = tran_all[idx]
