@@ -87,6 +87,9 @@ class TrainConfig:
       eval_every          evaluate every this many chunks (0: only at the end)
       eval_envs           episodes per evaluation (one per env, deterministic policy)
       stop_after_chunks   stop this invocation after this many chunks (resume continues it)
+      num_seeds           independent agents (seeds seed, seed+1, ...) trained in ONE program
+      vmap_sweep          {float algo option: [values]}: every value x every seed, in one program
+                          (see fastrl/scale.py); total_env_steps counts per agent
     """
 
     total_env_steps: int = 10_000_000
@@ -94,6 +97,8 @@ class TrainConfig:
     eval_every: int = 1
     eval_envs: int = 128
     stop_after_chunks: int | None = None
+    num_seeds: int = 1
+    vmap_sweep: dict | None = None
 
     def __post_init__(self):
         if self.total_env_steps < 1 or self.updates_per_chunk < 1 or self.eval_envs < 1:
@@ -102,6 +107,8 @@ class TrainConfig:
             )
         if self.eval_every < 0:
             raise ConfigError("train.eval_every must be >= 0")
+        if self.num_seeds < 1:
+            raise ConfigError(f"train.num_seeds={self.num_seeds} must be >= 1")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -236,6 +243,10 @@ def _jsonable(x):
 IDENTITY_SECTIONS = ("env", "algo", "network", "seed")
 
 
+IDENTITY_TRAIN_KEYS = ("num_seeds", "vmap_sweep")
+_DEFAULTS = {"num_seeds": 1, "vmap_sweep": None}  # checkpoints saved before these options existed
+
+
 def identity_diff(saved: Mapping, current: Mapping) -> list[str]:
     """Keys in ``IDENTITY_SECTIONS`` whose values differ, as ``key: saved -> current``."""
     diffs: list[str] = []
@@ -249,4 +260,7 @@ def identity_diff(saved: Mapping, current: Mapping) -> list[str]:
 
     for section in IDENTITY_SECTIONS:
         walk(saved.get(section), current.get(section), section)
+    for key in IDENTITY_TRAIN_KEYS:  # the agent batch sets the state's leading axis
+        saved_value = saved.get("train", {}).get(key, _DEFAULTS[key])
+        walk(saved_value, current.get("train", {}).get(key), f"train.{key}")
     return diffs

@@ -10,6 +10,7 @@ it then saves a checkpoint and exits (a second Ctrl-C stops at once, without sav
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import logging
 import math
@@ -23,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fastrl import agents
+from fastrl import agents, scale
 from fastrl.checkpoint import Checkpointer, CheckpointError
 from fastrl.config import RunConfig
 
@@ -70,7 +71,7 @@ def _unalias(tree):
 
 def _reduce(metrics: dict) -> dict[str, float]:
     """Per-chunk scalars from the (updates_per_chunk,) stacked update metrics."""
-    m = {k: np.asarray(v) for k, v in jax.device_get(metrics).items()}
+    m = {k: np.asarray(v) for k, v in scale.to_host(metrics).items()}
     out = {}
     episodes = float(m.pop("train/episodes").sum())
     ret_sum = float(m.pop("train/episode_return_sum").sum())
@@ -86,6 +87,9 @@ class _Outputs:
     """TensorBoard, metrics.csv and the curve PNG of one run folder."""
 
     def __init__(self, run_dir: Path, cfg: RunConfig, resumed_chunk: int, env_steps: int):
+        if jax.process_index() != 0:  # multi-host runs: one process writes the run's outputs
+            quiet = dict(tensorboard=False, csv=False, plot=False, progress=False)
+            cfg = dataclasses.replace(cfg, logger=dataclasses.replace(cfg.logger, **quiet))
         self.run_dir, self.cfg = run_dir, cfg
         self.csv_path = run_dir / "metrics.csv"
         self.writer = None
@@ -157,29 +161,47 @@ def _progress(row: dict, total_steps: int, elapsed: float) -> str:
 def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=None) -> dict[str, Any]:
     """Runs (or resumes) training into ``run_dir``.
 
+    With ``train.num_seeds > 1`` or a ``train.vmap_sweep`` the run is a batch of agents in one
+    program (``fastrl.scale``): each agent logs into ``run_dir/agents/<tag>/`` (its config,
+    metrics.csv, TensorBoard events, curve), and one checkpoint holds them all.
+
     Args:
       cfg: the typed run config.
       run_dir: the run's folder (config, checkpoints, logs, curve).
       resume: continue from the latest checkpoint in ``run_dir``.
-      on_chunk: optional callback ``(chunk, row)`` after every chunk (tests use it).
+      on_chunk: optional callback ``(chunk, row)`` after every chunk (tests use it); for a batch
+        ``row`` is the mean over agents and ``row["agents"]`` holds each agent's row.
     Returns:
       A summary: status ("done", "stopped", "diverged"), chunks, env_steps, final metrics.
     """
     run_dir = Path(run_dir).absolute()
     run_dir.mkdir(parents=True, exist_ok=True)
     env = cfg.env.make()
+    specs = scale.expand(cfg)
+    n_agents = len(specs)
     # The learner is built twice: first to learn its env steps per update, then with the run's
     # total updates (which set learning-rate schedules). Building is cheap; nothing is traced.
     steps_per_update = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, 1).env_steps_per_update
     total_updates = max(1, math.ceil(cfg.train.total_env_steps / steps_per_update))
     k = cfg.train.updates_per_chunk
     n_chunks = math.ceil(total_updates / k)
-    learner = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, n_chunks * k)
+    if n_agents > 1:
+        learner = scale.batch_learner(cfg, specs, env, n_chunks * k)
+        init_key = scale.init_keys(specs)
+    else:
+        learner = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, n_chunks * k)
+        init_key = jax.random.PRNGKey(cfg.seed)
     ckpt = Checkpointer(run_dir / CHECKPOINT_DIR, keep=cfg.checkpoint.keep)
     config = cfg.to_dict()
     (run_dir / "config.json").write_text(json.dumps(config, indent=2))
 
-    state = jax.jit(learner.init)(jax.random.PRNGKey(cfg.seed))
+    mesh = scale.mesh()
+    shardings = None
+    if mesh is not None:
+        abstract = jax.eval_shape(learner.init, init_key)
+        shardings = scale.state_shardings(abstract, mesh, n_agents, getattr(cfg.algo, "num_envs", None))
+    jit_init = jax.jit(learner.init) if shardings is None else jax.jit(learner.init, out_shardings=shardings)
+    state = jit_init(init_key)
     chunk, wall = 0, 0.0
     if resume:
         state, meta = ckpt.restore(state, config)
@@ -191,19 +213,36 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
             "a new run_dir (nothing was overwritten)"
         )
     state = _unalias(state)
+    if shardings is not None:
+        state = jax.device_put(state, shardings)
 
     def run_chunk(s):
-        return jax.lax.scan(lambda s, _: learner.update(s), s, None, length=k)
+        s, metrics = jax.lax.scan(lambda s, _: learner.update(s), s, None, length=k)
+        if shardings is not None:  # keep the layout fixed from chunk to chunk
+            s = jax.lax.with_sharding_constraint(s, shardings)
+        return s, metrics
 
     t0 = time.perf_counter()
     compiled = jax.jit(run_chunk, donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - t0
-    evaluate = jax.jit(agents.make_evaluator(env, learner.act, cfg.train.eval_envs))
+    evaluate = agents.make_evaluator(env, learner.act, cfg.train.eval_envs)
+    evaluate = jax.jit(evaluate if n_agents == 1 else jax.vmap(evaluate))
+    batch_note = f" x {n_agents} agents in one program" if n_agents > 1 else ""
     print(
         f"[fastrl] {cfg.env.name} / {cfg.algo_name}: {n_chunks} chunks x {k} updates x "
-        f"{steps_per_update:,d} env steps; chunk compiled in {compile_s:.1f}s; run dir {run_dir}"
+        f"{steps_per_update:,d} env steps{batch_note}; chunk compiled in {compile_s:.1f}s on "
+        f"{scale.describe(shardings, mesh)}; run dir {run_dir}"
     )
-    out = _Outputs(run_dir, cfg, chunk, int(state.env_steps))
+    if n_agents > 1:
+        outs = []
+        for spec in specs:
+            agent_dir = run_dir / "agents" / spec.tag
+            agent_dir.mkdir(parents=True, exist_ok=True)
+            (agent_dir / "config.json").write_text(json.dumps(spec.config.to_dict(), indent=2))
+            outs.append(_Outputs(agent_dir, spec.config, chunk, _env_steps(state)))
+    else:
+        outs = [_Outputs(run_dir, cfg, chunk, _env_steps(state))]
+    diverged = [False] * n_agents
     status, row, start_chunk = "done", {}, chunk
     save = lambda: ckpt.save(chunk, state, _meta(config, chunk, state, wall))  # noqa: E731
     try:
@@ -211,28 +250,44 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
             while chunk < n_chunks:
                 t = time.perf_counter()
                 new_state, metrics = compiled(state)
-                row = _reduce(metrics)
-                losses = [v for key, v in row.items() if key.startswith("loss/")]
-                if not all(math.isfinite(v) for v in losses):
+                if n_agents == 1:
+                    rows = [_reduce(metrics)]
+                else:
+                    rows = [_reduce(jax.tree.map(lambda x, i=i: x[:, i], metrics)) for i in range(n_agents)]
+                for i, r in enumerate(rows):
+                    losses = [v for key, v in r.items() if key.startswith("loss/")]
+                    if not diverged[i] and not all(math.isfinite(v) for v in losses):
+                        diverged[i] = True
+                        who = f"agent {specs[i].tag} " if n_agents > 1 else ""
+                        print(f"[fastrl] {who}training diverged (non-finite loss) in chunk {chunk + 1}",
+                              file=sys.stderr)  # fmt: skip
+                if all(diverged):
                     status, state = "diverged", new_state  # reported, never saved
-                    msg = f"[fastrl] training diverged (non-finite loss) in chunk {chunk + 1}; the last good "
-                    print(msg + "checkpoint is kept. Try a smaller learning rate or batch.", file=sys.stderr)
+                    msg = "[fastrl] the last good checkpoint is kept. Try a smaller learning rate or batch."
+                    print(msg, file=sys.stderr)
                     break
                 state, chunk = new_state, chunk + 1
                 dt = time.perf_counter() - t
                 wall += dt
-                row.update(chunk=chunk, env_steps=int(state.env_steps), wall_s=wall)
-                row["perf/env_steps_per_s"] = k * steps_per_update / dt
-                row["perf/compile_s"] = compile_s
                 every = cfg.train.eval_every
                 if chunk == n_chunks or (every and chunk % every == 0):
-                    key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed + 1), chunk)
-                    ret, length = jax.device_get(evaluate(learner.policy_params(state), key))
-                    row.update({"eval/episode_return": float(ret.mean()),
-                                "eval/episode_return_std": float(ret.std()),
-                                "eval/episode_length": float(length.mean())})  # fmt: skip
-                out.log(row)
-                if cfg.logger.progress:
+                    keys = [jax.random.fold_in(jax.random.PRNGKey(s.seed + 1), chunk) for s in specs]
+                    key = keys[0] if n_agents == 1 else jnp.stack(keys)
+                    result = scale.to_host(evaluate(learner.policy_params(state), key))
+                    ret, length = (np.asarray(x).reshape(n_agents, -1) for x in result)
+                    for i, r in enumerate(rows):
+                        r.update({"eval/episode_return": float(ret[i].mean()),
+                                  "eval/episode_return_std": float(ret[i].std()),
+                                  "eval/episode_length": float(length[i].mean())})  # fmt: skip
+                for i, (r, out) in enumerate(zip(rows, outs, strict=True)):
+                    r.update(chunk=chunk, env_steps=_env_steps(state, i), wall_s=wall)
+                    r["perf/env_steps_per_s"] = k * steps_per_update / dt
+                    r["perf/compile_s"] = compile_s
+                    if n_agents > 1:
+                        r["train/diverged"] = float(diverged[i])
+                    out.log(r)
+                row = rows[0] if n_agents == 1 else _mean_row(rows, n_agents)
+                if cfg.logger.progress and jax.process_index() == 0:
                     print(_progress(row, n_chunks * k * steps_per_update, wall), flush=True)
                 if on_chunk is not None:
                     on_chunk(chunk, row)
@@ -246,12 +301,36 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                     status = "stopped"
                     break
     finally:
-        out.plot()
-        out.close()
+        for out in outs:
+            out.plot()
+            out.close()
         ckpt.close()
-    return {"status": status, "chunks": chunk, "env_steps": int(state.env_steps), "compile_s": compile_s,
-            "wall_s": wall, "last": row, "run_dir": str(run_dir)}  # fmt: skip
+    summary = {"status": status, "chunks": chunk, "env_steps": _env_steps(state), "compile_s": compile_s,
+               "wall_s": wall, "last": row, "run_dir": str(run_dir)}  # fmt: skip
+    if n_agents > 1:
+        summary["agents"] = [s.tag for s in specs]
+        summary["diverged_agents"] = [s.tag for s, d in zip(specs, diverged, strict=True) if d]
+    return summary
+
+
+def _env_steps(state, agent: int | None = None) -> int:
+    """Env steps so far: of one agent of a batch, or the most of any agent."""
+    steps = np.asarray(scale.to_host(state.env_steps))
+    return int(steps.reshape(-1)[agent] if agent is not None else steps.max())
+
+
+def _mean_row(rows: list[dict], n_agents: int) -> dict:
+    """The batch's progress row: means over agents, total throughput over all of them."""
+    out: dict = {"agents": rows}
+    for key in rows[0]:
+        vals = [r[key] for r in rows if key in r and isinstance(r[key], int | float)]
+        vals = [v for v in vals if math.isfinite(v)]
+        if vals:
+            out[key] = float(np.mean(vals))
+    out["perf/env_steps_per_s"] = rows[0]["perf/env_steps_per_s"] * n_agents
+    out["env_steps"] = rows[0]["env_steps"]
+    return out
 
 
 def _meta(config: dict, chunk: int, state, wall: float) -> dict:
-    return {"config": config, "chunk": chunk, "env_steps": int(state.env_steps), "wall_s": wall}
+    return {"config": config, "chunk": chunk, "env_steps": _env_steps(state), "wall_s": wall}

@@ -7,6 +7,7 @@ Hydra composes ``conf/`` (see conf/train.yaml); this module turns the result int
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -41,11 +42,38 @@ def find_resume_dir(resume, runs_root: Path, current: Path) -> Path | None:
     return path
 
 
+def init_distributed() -> None:
+    """``jax.distributed.initialize`` for a multi-host run (one process per host).
+
+    Slurm, Open MPI and Cloud TPU launches are detected by JAX itself; elsewhere set
+    ``FASTRL_COORDINATOR`` (host:port of process 0), ``FASTRL_NUM_PROCESSES`` and
+    ``FASTRL_PROCESS_ID`` in each process's environment.
+    """
+    import jax
+
+    if "FASTRL_COORDINATOR" in os.environ:
+        try:
+            jax.distributed.initialize(
+                coordinator_address=os.environ["FASTRL_COORDINATOR"],
+                num_processes=int(os.environ["FASTRL_NUM_PROCESSES"]),
+                process_id=int(os.environ["FASTRL_PROCESS_ID"]),
+            )
+        except (KeyError, ValueError) as e:
+            raise ConfigError(
+                "distributed=true with FASTRL_COORDINATOR set also needs integer FASTRL_NUM_PROCESSES "
+                f"and FASTRL_PROCESS_ID ({type(e).__name__}: {e})"
+            ) from None
+    else:
+        jax.distributed.initialize()
+
+
 def run(cfg: DictConfig) -> dict:
     """Runs the composed config (also used in-process by tests)."""
     container = OmegaConf.to_container(cfg, resolve=True)
     container.pop("hydra", None)
     resume = container.pop("resume", False)
+    if container.pop("distributed", False):
+        init_distributed()
     run_dir = Path(container.pop("run_dir"))
     rc = RunConfig.from_dict(container)
     target = find_resume_dir(resume, run_dir.parent, run_dir)

@@ -1,0 +1,138 @@
+"""Agent batches in one program (num_seeds, vmap_sweep) and sharding over host devices."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from fastrl import agents, report, runner, scale
+from fastrl.config import ConfigError
+
+from .test_front_door import QUICK, typed
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_expand_lists_every_value_times_every_seed():
+    cfg = typed([*QUICK, "seed=3", "train.num_seeds=2", "train.vmap_sweep={learning_rate:[1e-3,3e-4]}"])
+    specs = scale.expand(cfg)
+    expected = [(3, 1e-3), (4, 1e-3), (3, 3e-4), (4, 3e-4)]
+    assert [(s.seed, s.config.algo.learning_rate) for s in specs] == expected
+    assert len({s.tag for s in specs}) == 4
+    for s in specs:  # each agent's config is that of the single run it reproduces
+        assert s.config.train.num_seeds == 1 and s.config.train.vmap_sweep is None
+        assert s.config.seed == s.seed
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("train.vmap_sweep={num_envs:[8,16]}", "only float options"),
+        ("train.vmap_sweep={learning_rate:3e-4}", "non-empty list"),
+        ("train.vmap_sweep={learning_rate:[-1.0]}", "learning_rate=-1.0 must be > 0"),
+        ("train.num_seeds=0", "num_seeds=0 must be >= 1"),
+    ],
+)
+def test_bad_agent_batches_are_refused_before_compiling(override, message):
+    with pytest.raises(ConfigError, match=message):
+        scale.expand(typed([*QUICK, override]))
+
+
+def _two_updates(learner):
+    return jax.jit(lambda s: jax.lax.scan(lambda s, _: learner.update(s), s, None, length=2))
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_each_agent_of_a_batch_matches_its_single_run(algo):
+    cfg = typed([*QUICK, f"algo={algo}", "train.num_seeds=2", "train.vmap_sweep={learning_rate:[1e-3,3e-4]}"])
+    env = cfg.env.make()
+    specs = scale.expand(cfg)
+    batch = scale.batch_learner(cfg, specs, env, 4)
+    batched, _ = _two_updates(batch)(jax.jit(batch.init)(scale.init_keys(specs)))
+    finals = []
+    for i, spec in enumerate(specs):
+        single = agents.make_learner(algo, spec.config.algo, env, cfg.network, 4)
+        state = jax.jit(single.init)(jax.random.PRNGKey(spec.seed))
+        state, _ = _two_updates(single)(state)
+        mine = jax.tree.map(lambda x, i=i: x[i], batched)
+        for a, b in zip(jax.tree.leaves(mine), jax.tree.leaves(state), strict=True):
+            np.testing.assert_allclose(np.asarray(a, float), np.asarray(b, float), rtol=2e-4, atol=2e-5)
+        finals.append(np.concatenate([np.ravel(x) for x in jax.tree.leaves(mine.params)]))
+    # independent RNG streams: agents of different seeds differ (and PPO's learning rates act at once)
+    for i in range(4):
+        for j in range(i):
+            if specs[i].seed != specs[j].seed or algo == "ppo":
+                assert not np.allclose(finals[i], finals[j]), (specs[i].tag, specs[j].tag)
+
+
+def test_batch_run_logs_each_agent_and_resumes_bit_exactly(tmp_path):
+    overrides = [
+        *QUICK,
+        "logger.plot=true",
+        "logger.tensorboard=true",
+        "train.num_seeds=2",
+        "train.vmap_sweep={entropy_cost:[0.0,0.01]}",
+    ]
+    cfg = typed(overrides)
+    full = runner.train(cfg, tmp_path / "full")
+    assert full["status"] == "done" and len(full["agents"]) == 4
+    agent_dirs = sorted((tmp_path / "full" / "agents").iterdir())
+    assert [d.name for d in agent_dirs] == full["agents"]
+    for d in agent_dirs:
+        for name in ("config.json", "metrics.csv", "curve.png"):
+            assert (d / name).exists(), d / name
+        assert any((d / "tb").iterdir())
+        assert json.loads((d / "config.json").read_text())["train"]["num_seeds"] == 1
+    # a batch split 1 + rest chunks equals the whole batch bit for bit
+    typed_split = typed([*overrides, "train.stop_after_chunks=1"])
+    assert runner.train(typed_split, tmp_path / "split")["status"] == "stopped"
+    runner.train(cfg, tmp_path / "split", resume=True)
+    for d in agent_dirs:
+        a = report.read_metrics(d / "metrics.csv")
+        b = report.read_metrics(tmp_path / "split" / "agents" / d.name / "metrics.csv")
+        for key in ("loss/policy_loss", "loss/value_loss", "eval/episode_return"):
+            np.testing.assert_array_equal(a[key], b[key])
+    assert report.main([str(tmp_path / "full")]) == 0
+    table = (tmp_path / "full" / "report.md").read_text()
+    assert "algo.entropy_cost=0.0" in table and "algo.entropy_cost=0.01" in table
+
+
+def test_resuming_with_another_agent_batch_names_the_difference(tmp_path):
+    cfg = typed([*QUICK, "train.num_seeds=2", "train.stop_after_chunks=1"])
+    runner.train(cfg, tmp_path)
+    with pytest.raises(Exception, match="train.num_seeds: 2 -> 3"):
+        runner.train(typed([*QUICK, "train.num_seeds=3"]), tmp_path, resume=True)
+
+
+_SHARD_SCRIPT = """
+import json, sys, jax, numpy as np
+from fastrl import runner
+from tests.train.test_front_door import typed
+cfg = typed(sys.argv[2:])
+out = runner.train(cfg, sys.argv[1])
+print(json.dumps({"devices": jax.device_count(), "status": out["status"]}))
+"""
+
+
+@pytest.mark.parametrize("overrides", [[], ["train.num_seeds=2"]], ids=["env_batch", "agent_batch"])
+def test_two_host_devices_give_the_one_device_result(tmp_path, overrides):
+    """The same run on 1 and on 2 CPU devices (env batch or agent batch split): equal curves."""
+    runs = {}
+    for n in (1, 2):
+        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}", PYTHONPATH=str(ROOT))
+        run_dir = tmp_path / f"dev{n}"
+        cmd = [sys.executable, "-c", _SHARD_SCRIPT, str(run_dir), *QUICK, *overrides]
+        out = subprocess.run(cmd, check=True, env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
+        assert json.loads(out.stdout.strip().splitlines()[-1]) == {"devices": n, "status": "done"}
+        assert (f"{n} cpu devices" in out.stdout) == (n > 1)
+        runs[n] = sorted(run_dir.rglob("metrics.csv"))
+    assert len(runs[1]) == len(runs[2]) == (2 if overrides else 1)
+    for a, b in zip(runs[1], runs[2], strict=True):
+        ma, mb = report.read_metrics(a), report.read_metrics(b)
+        for key in ("loss/policy_loss", "loss/value_loss", "train/episode_return", "eval/episode_return"):
+            np.testing.assert_allclose(ma[key], mb[key], rtol=1e-4, atol=1e-5, err_msg=key)
