@@ -1,0 +1,147 @@
+"""Sweeps and scale on this machine: N agents in one program, and 2 host devices vs 1.
+
+    python experiments/bench_scale.py            # Ant PPO (the shipped settings), 8 agents
+    python experiments/bench_scale.py --quick    # tiny, for CI
+
+Every configuration trains through ``fastrl.runner.train`` in a fresh process (the device
+count is fixed when JAX starts), a few chunks of the Ant's tuned PPO with evaluation kept
+small. Throughput is the median of the chunks after the first (compilation excluded).
+
+- One program with ``train.num_seeds=N`` vs one run: 8 sequential runs take 8 times one
+  run's time, so the ratio of env steps/s is the speed-up of the batch over running them
+  one after the other.
+- Each of the first two agents is compared with a separate single run of its seed: the
+  largest relative difference of its per-chunk losses and returns.
+- ``XLA_FLAGS=--xla_force_host_platform_device_count=2``: the same runs split over 2 CPU
+  devices (env batch for one agent, agent batch for N).
+
+Writes experiments/results/scale_throughput{,_quick}.{json,md}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "experiments" / "results"
+
+
+def worker(overrides: list[str], run_dir: str) -> None:
+    """Runs one training in this process and prints its per-chunk rows as one JSON line."""
+    import jax
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from fastrl import runner
+    from fastrl.config import RunConfig
+    from fastrl.train import CONF_DIR
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
+        cfg = compose("train", overrides=[*overrides, f"run_dir={run_dir}"])
+    container = OmegaConf.to_container(cfg, resolve=True)
+    for key in ("resume", "run_dir", "distributed"):
+        container.pop(key, None)
+    rows = []
+
+    def keep(chunk, row):
+        agents = row.get("agents", [row])
+        rows.append([{k: v for k, v in r.items() if isinstance(v, int | float)} for r in agents])
+
+    out = runner.train(RunConfig.from_dict(container), run_dir, on_chunk=keep)
+    result = {"devices": jax.device_count(), "compile_s": out["compile_s"], "rows": rows}
+    print("RESULT " + json.dumps(result))
+
+
+def measure(overrides: list[str], devices: int) -> dict:
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, __file__, "--worker", json.dumps(overrides), tmp + "/run"]
+        out = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=ROOT)
+    if out.returncode:
+        raise RuntimeError(f"{overrides} on {devices} devices failed:\n{out.stderr[-3000:]}")
+    result = json.loads(out.stdout.split("RESULT ", 1)[1])
+    rows = result["rows"]
+    n_agents = len(rows[0])
+    rates = sorted(r[0]["perf/env_steps_per_s"] * n_agents for r in rows[1:]) or [0.0]
+    result.update(overrides=overrides, n_agents=n_agents, env_steps_per_s=rates[len(rates) // 2])
+    return result
+
+
+def max_rel_diff(a: list[dict], b: list[dict], keys: tuple[str, ...]) -> float:
+    worst = 0.0
+    for ra, rb in zip(a, b, strict=True):
+        for k in keys:
+            if k in ra and k in rb:
+                worst = max(worst, abs(ra[k] - rb[k]) / max(abs(rb[k]), 1e-6))
+    return worst
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
+    parser.add_argument("--agents", type=int, default=8)
+    parser.add_argument("--chunks", type=int, default=4)
+    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--worker", nargs=2, metavar=("OVERRIDES_JSON", "RUN_DIR"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker:
+        worker(json.loads(args.worker[0]), args.worker[1])
+        return
+    if args.quick:
+        base = ["env=inverted_pendulum", "debug=quick", "logger=quiet", "train.total_env_steps=512"]
+        n_agents, per_update = 2, 128
+    else:
+        base = ["env=ant", "algo=ppo", "logger=quiet", "train.updates_per_chunk=2", "train.eval_envs=4"]
+        n_agents, per_update = args.agents, 10240
+        base.append(f"train.total_env_steps={args.chunks * 2 * per_update}")
+    seeds = [f"train.num_seeds={n_agents}"]
+    runs = {
+        "one run, 1 device": measure(base, 1),
+        f"{n_agents} agents in one program, 1 device": measure(base + seeds, 1),
+        "one run of seed 1, 1 device": measure(base + ["seed=1"], 1),
+        "one run, 2 devices (env batch split)": measure(base, 2),
+        f"{n_agents} agents in one program, 2 devices (agents split)": measure(base + seeds, 2),
+    }
+    one = runs["one run, 1 device"]["env_steps_per_s"]
+    keys = ("loss/policy_loss", "loss/value_loss", "train/episode_return", "eval/episode_return")
+    batch_rows = runs[f"{n_agents} agents in one program, 1 device"]["rows"]
+    agree = {
+        f"agent seed {s} vs its single run": max_rel_diff(
+            [r[s] for r in batch_rows], [r[0] for r in runs[name]["rows"]], keys
+        )
+        for s, name in ((0, "one run, 1 device"), (1, "one run of seed 1, 1 device"))
+    }
+    finals = [batch_rows[-1][i]["train/episode_return"] for i in range(n_agents)]
+    sharded = max_rel_diff(runs["one run, 2 devices (env batch split)"]["rows"][0],
+                           runs["one run, 1 device"]["rows"][0], keys)  # fmt: skip
+    args.out.mkdir(parents=True, exist_ok=True)
+    name = "scale_throughput_quick" if args.quick else "scale_throughput"
+    result = {"runs": runs, "agreement": agree, "sharded_first_chunk_rel_diff": sharded,
+              "agent_final_train_returns": finals, "cpu_count": os.cpu_count()}  # fmt: skip
+    (args.out / f"{name}.json").write_text(json.dumps(result, indent=1))
+    lines = [f"# Sweeps and scale: {base[0].split('=')[1]} PPO on a {os.cpu_count()}-core CPU", "",
+             "Command: `python experiments/bench_scale.py`. Env steps/s summed over agents, median of "
+             "chunks after the first.", "",
+             "| configuration | env steps/s | vs one run on 1 device | compile s |",
+             "| --- | ---: | ---: | ---: |"]  # fmt: skip
+    for label, r in runs.items():
+        ratio = r["env_steps_per_s"] / one if one else float("nan")
+        lines.append(f"| {label} | {r['env_steps_per_s']:,.0f} | {ratio:.2f}x | {r['compile_s']:.1f} |")
+    lines += ["", "Largest relative difference of per-chunk losses and returns:", ""]
+    lines += [f"- {k}: {v:.2e}" for k, v in agree.items()]
+    lines += [f"- one run on 2 devices vs 1 device, first chunk: {sharded:.2e}", "",
+              "Final-chunk train returns of the agents (independent RNG streams): "
+              + ", ".join(f"{x:.1f}" for x in finals)]  # fmt: skip
+    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
