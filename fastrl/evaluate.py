@@ -1,8 +1,12 @@
 """``python -m fastrl.evaluate RUN_DIR``: evaluate a run's latest policy.
 
 Runs N deterministic episodes (one per env, in one batch), prints the mean and standard deviation
-of the return, and can export the first episode's trajectory (``--export out.npz``: qpos per
-step, the env name and timestep) for viewing or for replay in MuJoCo.
+of the return, and can show the first episode:
+
+  --html out.html    a self-contained page that plays it in 3D in any browser (fastrl.viewer)
+  --video out.gif    a video rendered by MuJoCo (.gif, or .mp4 with imageio-ffmpeg); needs EGL
+                     or OSMesa (exit status 2, with a hint, when neither works)
+  --export out.npz   its qpos per step, the env name and timestep, for replay in MuJoCo
 """
 
 from __future__ import annotations
@@ -19,18 +23,38 @@ from fastrl.checkpoint import CheckpointError
 from fastrl.policy import load_run
 
 
-def rollout_qpos(env, act, params, key) -> np.ndarray:
-    """(episode_length + 1, nq) positions of one deterministic episode (until it ends)."""
-    state = env.reset(key)
+def make_rollout(env, act, length: int | None = None):
+    """A jittable ``(params, key) -> (qpos, alive)`` of one deterministic episode.
 
-    def one(carry, _):
-        s, alive = carry
-        nxt = env.step(s, act(params, s.obs))
-        return (nxt, alive & ~nxt.done), (nxt.data.qpos, alive)
+    Args:
+      env: the env; act: the learner's deterministic ``act(params, obs)``.
+      length: env steps to run (default and at most: the env's episode length).
+    Returns:
+      The function; its outputs are (length + 1, nq) positions from the reset on and a
+      (length + 1,) mask of the frames that belong to the episode. The step that ends the episode
+      is masked out: its state already holds the next episode's reset.
+    """
+    length = env.episode_length if length is None else min(length, env.episode_length)
 
-    _, (qpos, alive) = jax.lax.scan(one, (state, jnp.ones((), bool)), None, length=env.episode_length)
-    qpos, alive = np.asarray(qpos), np.asarray(alive)
-    return np.concatenate([np.asarray(state.data.qpos)[None], qpos[alive]])
+    def rollout(params, key):
+        state = env.reset(key)
+
+        def one(carry, _):
+            s, alive = carry
+            nxt = env.step(s, act(params, s.obs))
+            alive = alive & ~nxt.done
+            return (nxt, alive), (nxt.data.qpos, alive)
+
+        _, (qpos, alive) = jax.lax.scan(one, (state, jnp.ones((), bool)), None, length=length)
+        return jnp.concatenate([state.data.qpos[None], qpos]), jnp.concatenate([jnp.ones(1, bool), alive])
+
+    return rollout
+
+
+def rollout_qpos(env, act, params, key, length: int | None = None) -> np.ndarray:
+    """(T, nq) positions of one deterministic episode (until it ends, at most ``length`` steps)."""
+    qpos, alive = jax.device_get(jax.jit(make_rollout(env, act, length))(params, key))
+    return np.asarray(qpos)[np.asarray(alive)]
 
 
 def main(argv=None) -> int:
@@ -40,6 +64,9 @@ def main(argv=None) -> int:
     parser.add_argument("--episodes", type=int, default=16, help="episodes to run (default 16)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--export", metavar="OUT.npz", help="save the first episode's qpos trajectory")
+    parser.add_argument("--html", metavar="OUT.html", help="write a 3D viewer page of the first episode")
+    parser.add_argument("--video", metavar="OUT.gif", help="render the first episode (.gif or .mp4)")
+    parser.add_argument("--steps", type=int, help="show at most this many steps of it (default: all)")
     args = parser.parse_args(argv)
     try:
         rc, env, learner, state = load_run(args.run_dir)
@@ -53,10 +80,31 @@ def main(argv=None) -> int:
         f"{rc.env.name} / {rc.algo_name} at {int(state.env_steps):,d} env steps: return "
         f"{ret.mean():.2f} +- {ret.std():.2f} over {args.episodes} episodes (length {length.mean():.0f})"
     )
-    if args.export:
-        traj = rollout_qpos(env, learner.act, params, jax.random.PRNGKey(args.seed))
-        np.savez(args.export, qpos=traj, env=rc.env.name, dt=env.dt)
-        print(f"wrote {args.export} ({len(traj)} frames)")
+    if args.export or args.html or args.video:
+        return _show(args, rc, env, learner, params, int(state.env_steps))
+    return 0
+
+
+def _show(args, rc, env, learner, params, env_steps: int) -> int:
+    """Writes the first episode as --export, --html and --video ask (exit status 2: no video)."""
+    from fastrl import viewer
+
+    try:
+        if args.video:
+            viewer.video.check_format(args.video)  # before the rollout: fail fast
+        traj = rollout_qpos(env, learner.act, params, jax.random.PRNGKey(args.seed), args.steps)
+        if args.export:
+            np.savez(args.export, qpos=traj, env=rc.env.name, dt=env.dt)
+            print(f"wrote {args.export} ({len(traj)} frames)")
+        if args.html:
+            title = f"{rc.env.name} / {rc.algo_name} at {env_steps:,d} env steps"
+            path = viewer.write_html(env, traj, args.html, title)
+            print(f"wrote {path} ({len(traj)} frames, {path.stat().st_size / 1e6:.2f} MB)")
+        if args.video:
+            print(f"wrote {viewer.render_video(env, traj, args.video)} ({len(traj)} frames)")
+    except viewer.VideoError as e:
+        print(f"[fastrl] error: {e}", file=sys.stderr)
+        return 2
     return 0
 
 
