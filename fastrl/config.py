@@ -120,12 +120,19 @@ class LoggerConfig:
       csv           append a row per chunk to RUN_DIR/metrics.csv
       plot          draw RUN_DIR/curve.png (return vs env steps and vs seconds)
       progress      print a progress line per chunk
+      viewer_every  every this many chunks (and at the last), write a rollout's 3D viewer page to
+                    RUN_DIR/viewer/chunk_<n>.html and RUN_DIR/viewer.html (0: never)
     """
 
     tensorboard: bool = True
     csv: bool = True
     plot: bool = True
     progress: bool = True
+    viewer_every: int = 0
+
+    def __post_init__(self):
+        if self.viewer_every < 0:
+            raise ConfigError("logger.viewer_every must be >= 0 (0 writes no viewer pages)")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -227,6 +227,12 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
     compile_s = time.perf_counter() - t0
     evaluate = agents.make_evaluator(env, learner.act, cfg.train.eval_envs)
     evaluate = jax.jit(evaluate if n_agents == 1 else jax.vmap(evaluate))
+    write_viewer = None
+    if cfg.logger.viewer_every:  # a rollout's 3D page every N chunks (agent 0 of a batch)
+        from fastrl import viewer
+
+        title = f"{cfg.env.name} / {cfg.algo_name}"
+        write_viewer = viewer.make_run_writer(env, learner.act, title, batched=n_agents > 1)
     batch_note = f" x {n_agents} agents in one program" if n_agents > 1 else ""
     print(
         f"[fastrl] {cfg.env.name} / {cfg.algo_name}: {n_chunks} chunks x {k} updates x "
@@ -279,6 +285,10 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                         r.update({"eval/episode_return": float(ret[i].mean()),
                                   "eval/episode_return_std": float(ret[i].std()),
                                   "eval/episode_length": float(length[i].mean())})  # fmt: skip
+                if write_viewer and (chunk == n_chunks or chunk % cfg.logger.viewer_every == 0):
+                    params = scale.to_host(learner.policy_params(state))  # every process gathers
+                    if jax.process_index() == 0:
+                        write_viewer(run_dir, chunk, params, jax.random.PRNGKey(cfg.seed + 1))
                 for i, (r, out) in enumerate(zip(rows, outs, strict=True)):
                     r.update(chunk=chunk, env_steps=_env_steps(state, i), wall_s=wall)
                     r["perf/env_steps_per_s"] = k * steps_per_update / dt
