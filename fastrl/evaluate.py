@@ -75,10 +75,11 @@ def main(argv=None) -> int:
         return 2
     params = learner.policy_params(state)
     evaluate = jax.jit(agents.make_evaluator(env, learner.act, args.episodes))
-    ret, length = jax.device_get(evaluate(params, jax.random.PRNGKey(args.seed)))
+    ret, length, final = jax.device_get(evaluate(params, jax.random.PRNGKey(args.seed)))
     print(
         f"{rc.env.name} / {rc.algo_name} at {int(state.env_steps):,d} env steps: return "
         f"{ret.mean():.2f} +- {ret.std():.2f} over {args.episodes} episodes (length {length.mean():.0f})"
+        + "".join(f", {k} {float(v.mean()):.2f}" for k, v in final.items())
     )
     if args.export or args.html or args.video:
         return _show(args, rc, env, learner, params, int(state.env_steps))

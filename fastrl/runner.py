@@ -279,12 +279,14 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                 if chunk == n_chunks or (every and chunk % every == 0):
                     keys = [jax.random.fold_in(jax.random.PRNGKey(s.seed + 1), chunk) for s in specs]
                     key = keys[0] if n_agents == 1 else jnp.stack(keys)
-                    result = scale.to_host(evaluate(learner.policy_params(state), key))
-                    ret, length = (np.asarray(x).reshape(n_agents, -1) for x in result)
+                    ret, length, final = scale.to_host(evaluate(learner.policy_params(state), key))
+                    ret, length = (np.asarray(x).reshape(n_agents, -1) for x in (ret, length))
+                    final = {k: np.asarray(v).reshape(n_agents, -1) for k, v in final.items()}
                     for i, r in enumerate(rows):
                         r.update({"eval/episode_return": float(ret[i].mean()),
                                   "eval/episode_return_std": float(ret[i].std()),
                                   "eval/episode_length": float(length[i].mean())})  # fmt: skip
+                        r.update({f"eval/{k}": float(v[i].mean()) for k, v in final.items()})
                 if write_viewer and (chunk == n_chunks or chunk % cfg.logger.viewer_every == 0):
                     params = scale.to_host(learner.policy_params(state))  # every process gathers
                     if jax.process_index() == 0:

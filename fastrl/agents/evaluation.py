@@ -9,11 +9,15 @@ from fastrl.envs.base import Env
 
 
 def make_evaluator(env: Env, act, num_envs: int):
-    """Returns ``evaluate(policy_params, key) -> (returns (num_envs,), lengths (num_envs,))``.
+    """Returns ``evaluate(policy_params, key) -> (returns, lengths, final)``.
 
     Each env runs until its first episode ends (termination or the time limit); later
     auto-reset episodes are masked out. ``act(policy_params, obs)`` must be deterministic.
+    ``returns`` and ``lengths`` are (num_envs,); ``final`` maps each of the env's
+    ``eval_metrics`` (e.g. ``success`` of a goal-reaching task) to its (num_envs,) value at the
+    episode's last step.
     """
+    names = tuple(getattr(env, "eval_metrics", ()))
     reset = jax.vmap(env.reset)
     step = jax.vmap(env.step)
 
@@ -21,15 +25,17 @@ def make_evaluator(env: Env, act, num_envs: int):
         state = reset(jax.random.split(key, num_envs))
 
         def one(carry, _):
-            state, ret, length, alive = carry
+            state, ret, length, alive, final = carry
             nxt = step(state, act(policy_params, state.obs))
             ret = ret + jnp.where(alive, nxt.reward, 0.0)
             length = length + alive.astype(jnp.int32)
-            return (nxt, ret, length, alive & ~nxt.done), None
+            final = {k: jnp.where(alive, nxt.metrics[k], v) for k, v in final.items()}
+            return (nxt, ret, length, alive & ~nxt.done, final), None
 
         zeros = jnp.zeros(num_envs)
-        init = (state, zeros, jnp.zeros(num_envs, jnp.int32), jnp.ones(num_envs, bool))
-        (_, ret, length, _), _ = jax.lax.scan(one, init, None, length=env.episode_length)
-        return ret, length
+        final = {k: zeros for k in names}
+        init = (state, zeros, jnp.zeros(num_envs, jnp.int32), jnp.ones(num_envs, bool), final)
+        (_, ret, length, _, final), _ = jax.lax.scan(one, init, None, length=env.episode_length)
+        return ret, length, final
 
     return evaluate

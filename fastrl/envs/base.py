@@ -50,6 +50,8 @@ class State:
       episode_length () steps of the current episode so far (same convention)
       params        dict field -> array of per-env randomised model parameters (may be empty)
       rng           (2,) uint32 key the env draws its next reset from
+      task          dict name -> array of task variables that are not physics (a goal-seeking
+                    env's target); empty for the standard suite
     """
 
     data: Data
@@ -63,6 +65,7 @@ class State:
     episode_length: jax.Array
     params: dict
     rng: jax.Array
+    task: dict = dataclasses.field(default_factory=dict)
 
     @property
     def done(self) -> jax.Array:
@@ -190,6 +193,24 @@ class Env:
         extra metrics of one step. Weights come from ``self.reward_weights`` by term name."""
         raise NotImplementedError
 
+    # Goal-conditioned envs override these three instead of ``_observe``/``_reward``; the task
+    # (a dict of arrays, e.g. a target position) lives in ``State.task``.
+
+    def _sample_task(self, key: jax.Array, model: Model, data: Data) -> dict:
+        """Task variables of a new episode (default: none)."""
+        return {}
+
+    def _observe_task(self, model: Model, data: Data, task: dict) -> jax.Array:
+        return self._observe(model, data)
+
+    def _reward_task(
+        self, model: Model, before: Data, after: Data, action: jax.Array, task: dict, key: jax.Array
+    ) -> tuple[dict, jax.Array, dict, dict]:
+        """Like ``_reward``, plus the task for the next step (e.g. a new target once reached,
+        drawn from ``key``)."""
+        terms, terminated, extra = self._reward(model, before, after, action)
+        return terms, terminated, extra, task
+
     # ---------------------------------------------------------------- public API
 
     @property
@@ -204,7 +225,8 @@ class Env:
     @property
     def observation_size(self) -> int:
         data = self._reset_data(jax.random.PRNGKey(0), self.model)
-        return int(jax.eval_shape(lambda: self._observe(self.model, data)).shape[0])
+        task = self._sample_task(jax.random.PRNGKey(0), self.model, data)
+        return int(jax.eval_shape(lambda: self._observe_task(self.model, data, task)).shape[0])
 
     @property
     def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -218,14 +240,15 @@ class Env:
         params = self._sample_params(param_key)
         model = self._model(params)
         data = self._reset_data(reset_key, model)
-        obs = self._observe(model, data)
+        task = self._sample_task(jax.random.fold_in(reset_key, 7), model, data)
+        obs = self._observe_task(model, data, task)
         zero = jnp.zeros((), obs.dtype)
         no = jnp.zeros((), bool)
         metrics = {k: zero for k in self.metric_names()}
         return State(
             data=data, obs=obs, reward=zero, terminated=no, truncated=no, final_obs=obs,
             metrics=metrics, episode_return=zero, episode_length=jnp.zeros((), jnp.int32),
-            params=params, rng=key,
+            params=params, rng=key, task=task,
         )  # fmt: skip
 
     def reset_to(self, qpos: jax.Array, qvel: jax.Array, key: jax.Array | None = None) -> State:
@@ -239,7 +262,7 @@ class Env:
         model = self._model(state.params)
         data = physics.make_data(model, qpos=qpos, qvel=qvel)
         data = physics.forward_forces(model, data)
-        obs = self._observe(model, data)
+        obs = self._observe_task(model, data, state.task)
         return state.replace(data=data, obs=obs, final_obs=obs)
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -261,9 +284,10 @@ class Env:
             return physics.step(model, data, action), None
 
         after, _ = jax.lax.scan(substep, before, None, length=self.frame_skip)
-        terms, terminated, extra = self._reward(model, before, after, action)
+        task_key = jax.random.fold_in(state.rng, 2)
+        terms, terminated, extra, task = self._reward_task(model, before, after, action, state.task, task_key)
         reward = sum(terms.values())
-        obs = self._observe(model, after)
+        obs = self._observe_task(model, after, task)
         diverged = after.diverged | ~jnp.all(jnp.isfinite(obs)) | ~jnp.isfinite(reward)
         # A diverged env is ended and reset; its NaNs never reach the learner.
         obs = jnp.where(diverged, 0.0, obs)
@@ -294,13 +318,16 @@ class Env:
             episode_length=length,
             params=jax.tree.map(pick, fresh.params, state.params),
             rng=jnp.where(done, fresh.rng, jax.random.fold_in(state.rng, 1)),
+            task=jax.tree.map(pick, fresh.task, task),
         )
 
     def metric_names(self) -> list[str]:
         """Names of ``State.metrics`` (fixed per env, so batches have a static structure)."""
         model, data = self.model, self._reset_data(jax.random.PRNGKey(0), self.model)
         action = jnp.zeros(self.model.nu, data.qpos.dtype)
-        terms, _, extra = jax.eval_shape(lambda: self._reward(model, data, data, action))
+        task = self._sample_task(jax.random.PRNGKey(0), model, data)
+        key = jax.random.PRNGKey(0)
+        terms, _, extra, _ = jax.eval_shape(lambda: self._reward_task(model, data, data, action, task, key))
         return [f"reward_{k}" for k in terms] + list(extra) + ["diverged"]
 
     # ---------------------------------------------------------------- helpers

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fastrl.envs import locomotion, manipulation
+from fastrl.envs import locomotion, manipulation, scenes
 from fastrl.envs.base import Env
 
 _REGISTRY: dict[str, type[Env]] = {}
@@ -28,6 +28,8 @@ for _cls in (
     manipulation.Pusher,
     manipulation.InvertedPendulum,
     manipulation.InvertedDoublePendulum,
+    scenes.ArmReach,
+    scenes.AntGoal,
 ):
     register(_cls)
 
