@@ -1,6 +1,7 @@
 """Sweeps and scale on this machine: N agents in one program, and 2 host devices vs 1.
 
     python experiments/bench_scale.py            # Ant PPO (the shipped settings), 8 agents
+    python experiments/bench_scale.py --env inverted_pendulum   # a small env's tuned PPO
     python experiments/bench_scale.py --quick    # tiny, for CI
 
 Every configuration trains through ``fastrl.runner.train`` in a fresh process (the device
@@ -15,7 +16,7 @@ small. Throughput is the median of the chunks after the first (compilation exclu
 - ``XLA_FLAGS=--xla_force_host_platform_device_count=2``: the same runs split over 2 CPU
   devices (env batch for one agent, agent batch for N).
 
-Writes experiments/results/scale_throughput{,_quick}.{json,md}.
+Writes experiments/results/scale_throughput_<env>.{json,md} (``_quick`` in CI mode).
 """
 
 from __future__ import annotations
@@ -58,6 +59,25 @@ def worker(overrides: list[str], run_dir: str) -> None:
     print("RESULT " + json.dumps(result))
 
 
+def _steps_per_update(overrides: list[str]) -> int:
+    from hydra import compose, initialize_config_dir
+
+    from fastrl.train import CONF_DIR
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
+        algo = compose("train", overrides=[*overrides, "run_dir=/unused"]).algo
+    return int(algo.num_envs) * int(algo.unroll_length)
+
+
+def _total_env_steps(overrides: list[str]) -> int:
+    from hydra import compose, initialize_config_dir
+
+    from fastrl.train import CONF_DIR
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
+        return int(compose("train", overrides=[*overrides, "run_dir=/unused"]).train.total_env_steps)
+
+
 def measure(overrides: list[str], devices: int) -> dict:
     env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
@@ -86,9 +106,14 @@ def max_rel_diff(a: list[dict], b: list[dict], keys: tuple[str, ...]) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
+    parser.add_argument("--env", default="ant", help="env trained with its tuned PPO settings")
     parser.add_argument("--agents", type=int, default=8)
+    parser.add_argument(
+        "--updates-per-chunk", type=int, default=2, help="longer chunks time small envs better"
+    )
     parser.add_argument("--chunks", type=int, default=4)
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--render", type=pathlib.Path, help="re-tabulate this result JSON's runs")
     parser.add_argument("--worker", nargs=2, metavar=("OVERRIDES_JSON", "RUN_DIR"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
@@ -98,47 +123,76 @@ def main() -> None:
         base = ["env=inverted_pendulum", "debug=quick", "logger=quiet", "train.total_env_steps=512"]
         n_agents, per_update = 2, 128
     else:
-        base = ["env=ant", "algo=ppo", "logger=quiet", "train.updates_per_chunk=2", "train.eval_envs=4"]
-        n_agents, per_update = args.agents, 10240
-        base.append(f"train.total_env_steps={args.chunks * 2 * per_update}")
+        base = [
+            f"env={args.env}",
+            "algo=ppo",
+            "logger=quiet",
+            f"train.updates_per_chunk={args.updates_per_chunk}",
+        ]
+        base.append("train.eval_envs=4")
+        n_agents, per_update = args.agents, _steps_per_update(base)
+        base.append(f"train.total_env_steps={args.chunks * args.updates_per_chunk * per_update}")
     seeds = [f"train.num_seeds={n_agents}"]
-    runs = {
-        "one run, 1 device": measure(base, 1),
-        f"{n_agents} agents in one program, 1 device": measure(base + seeds, 1),
-        "one run of seed 1, 1 device": measure(base + ["seed=1"], 1),
-        "one run, 2 devices (env batch split)": measure(base, 2),
-        f"{n_agents} agents in one program, 2 devices (agents split)": measure(base + seeds, 2),
-    }
+    if args.render:  # re-tabulate the runs of an earlier measurement
+        runs = json.loads(args.render.read_text())["runs"]
+    else:
+        runs = {
+            "one run, 1 device": measure(base, 1),
+            f"{n_agents} agents in one program, 1 device": measure(base + seeds, 1),
+            "one run of seed 1, 1 device": measure(base + ["seed=1"], 1),
+            "one run, 2 devices (env batch split)": measure(base, 2),
+            f"{n_agents} agents in one program, 2 devices (agents split)": measure(base + seeds, 2),
+        }
     one = runs["one run, 1 device"]["env_steps_per_s"]
     keys = ("loss/policy_loss", "loss/value_loss", "train/episode_return", "eval/episode_return")
     batch_rows = runs[f"{n_agents} agents in one program, 1 device"]["rows"]
-    agree = {
-        f"agent seed {s} vs its single run": max_rel_diff(
-            [r[s] for r in batch_rows], [r[0] for r in runs[name]["rows"]], keys
+    # Float rounding differs between a vmapped and a single program; the first chunk shows how
+    # closely they agree, the last whether chaotic dynamics have since amplified the difference.
+    agree, last_eval = {}, {}
+    for s, name in ((0, "one run, 1 device"), (1, "one run of seed 1, 1 device")):
+        single = runs[name]["rows"]
+        for which, c in (("first", 0), ("last", -1)):
+            agree[f"agent seed {s} vs its single run, {which} chunk"] = max_rel_diff(
+                [batch_rows[c][s]], [single[c][0]], keys
+            )
+        last_eval[s] = (
+            batch_rows[-1][s].get("eval/episode_return"),
+            single[-1][0].get("eval/episode_return"),
         )
-        for s, name in ((0, "one run, 1 device"), (1, "one run of seed 1, 1 device"))
-    }
-    finals = [batch_rows[-1][i]["train/episode_return"] for i in range(n_agents)]
+    finals = [batch_rows[-1][i].get("eval/episode_return", float("nan")) for i in range(n_agents)]
     sharded = max_rel_diff(runs["one run, 2 devices (env batch split)"]["rows"][0],
                            runs["one run, 1 device"]["rows"][0], keys)  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
-    name = "scale_throughput_quick" if args.quick else "scale_throughput"
-    result = {"runs": runs, "agreement": agree, "sharded_first_chunk_rel_diff": sharded,
-              "agent_final_train_returns": finals, "cpu_count": os.cpu_count()}  # fmt: skip
-    (args.out / f"{name}.json").write_text(json.dumps(result, indent=1))
+    name = "scale_throughput_quick" if args.quick else f"scale_throughput_{args.env}"
+    result = {"runs": runs, "agreement": agree, "final_eval_agent_vs_single": last_eval,
+              "sharded_first_chunk_rel_diff": sharded, "agent_final_eval_returns": finals,
+              "cpu_count": os.cpu_count()}  # fmt: skip
     lines = [f"# Sweeps and scale: {base[0].split('=')[1]} PPO on a {os.cpu_count()}-core CPU", "",
-             "Command: `python experiments/bench_scale.py`. Env steps/s summed over agents, median of "
-             "chunks after the first.", "",
+             f"Command: `python experiments/bench_scale.py --env {args.env}`. Env steps/s summed over "
+             "agents, median of chunks after the first.", "",
              "| configuration | env steps/s | vs one run on 1 device | compile s |",
              "| --- | ---: | ---: | ---: |"]  # fmt: skip
     for label, r in runs.items():
         ratio = r["env_steps_per_s"] / one if one else float("nan")
         lines.append(f"| {label} | {r['env_steps_per_s']:,.0f} | {ratio:.2f}x | {r['compile_s']:.1f} |")
-    lines += ["", "Largest relative difference of per-chunk losses and returns:", ""]
+    budget = _total_env_steps([f"env={args.env}", "algo=ppo"]) if not args.quick else 512
+    one_c, batch = runs["one run, 1 device"]["compile_s"], runs[f"{n_agents} agents in one program, 1 device"]
+    if one and batch["env_steps_per_s"]:
+        sequential = n_agents * (one_c + budget / one)
+        together = batch["compile_s"] + n_agents * budget / batch["env_steps_per_s"]
+        lines += ["", f"Estimated wall time of {n_agents} runs of the shipped budget ({budget:,d} env steps "
+                  f"each), compiles included, 1 device: one after the other {sequential:,.0f} s, in one "
+                  f"program "
+                  f"{together:,.0f} s ({sequential / together:.2f}x)."]  # fmt: skip
+        result["sweep_estimate_s"] = {"sequential": sequential, "one_program": together}
+    lines += ["", "Largest relative difference of the chunk's losses and returns:", ""]
     lines += [f"- {k}: {v:.2e}" for k, v in agree.items()]
+    lines += [f"- agent seed {s}: final eval return {a:.1f} in the batch, {b:.1f} as a single run"
+              for s, (a, b) in last_eval.items()]  # fmt: skip
     lines += [f"- one run on 2 devices vs 1 device, first chunk: {sharded:.2e}", "",
-              "Final-chunk train returns of the agents (independent RNG streams): "
+              "Final evaluation returns of the agents (independent RNG streams): "
               + ", ".join(f"{x:.1f}" for x in finals)]  # fmt: skip
+    (args.out / f"{name}.json").write_text(json.dumps(result, indent=1))
     (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
