@@ -33,3 +33,16 @@ def test_reaches_threshold(tmp_path, env_name, algo, threshold, seeds):
         took = f"{out['wall_s']:.0f}s (+{out['compile_s']:.0f}s compile)"
         print(f"{env_name}/{algo} seed {seed}: return {ret:.1f} in {took}")
         assert ret >= threshold, f"seed {seed}: {ret:.1f} < {threshold}"
+
+
+@pytest.mark.slow
+def test_arm_reach_ppo_succeeds_in_80_percent_of_episodes_for_3_seeds_in_one_program(tmp_path):
+    """arm_reach success: flange within 5 cm of the target at the episode's end, over 64
+    deterministic evaluation episodes per agent; the bar (80%) was set before training."""
+    overrides = ["env=arm_reach", "algo=ppo", "logger=quiet", "train.num_seeds=3", f"run_dir={tmp_path}"]
+    out = run(compose_cfg(overrides))
+    success = [agent["eval/success"] for agent in out["last"]["agents"]]
+    print(
+        f"arm_reach/ppo 3 seeds: success {success} in {out['wall_s']:.0f}s (+{out['compile_s']:.0f}s compile)"
+    )
+    assert min(success) >= 0.8, success
