@@ -24,14 +24,15 @@ from fastrl.policy import load_run
 
 
 def make_rollout(env, act, length: int | None = None):
-    """A jittable ``(params, key) -> (qpos, alive)`` of one deterministic episode.
+    """A jittable ``(params, key) -> (qpos, alive, markers)`` of one deterministic episode.
 
     Args:
       env: the env; act: the learner's deterministic ``act(params, obs)``.
       length: env steps to run (default and at most: the env's episode length).
     Returns:
-      The function; its outputs are (length + 1, nq) positions from the reset on and a
-      (length + 1,) mask of the frames that belong to the episode. The step that ends the episode
+      The function; its outputs are (length + 1, nq) positions from the reset on, a
+      (length + 1,) mask of the frames that belong to the episode, and the (length + 1, M, 3)
+      positions of the env's ``markers`` (its goals) per frame. The step that ends the episode
       is masked out: its state already holds the next episode's reset.
     """
     length = env.episode_length if length is None else min(length, env.episode_length)
@@ -43,18 +44,27 @@ def make_rollout(env, act, length: int | None = None):
             s, alive = carry
             nxt = env.step(s, act(params, s.obs))
             alive = alive & ~nxt.done
-            return (nxt, alive), (nxt.data.qpos, alive)
+            return (nxt, alive), (nxt.data.qpos, alive, env.markers(nxt.task))
 
-        _, (qpos, alive) = jax.lax.scan(one, (state, jnp.ones((), bool)), None, length=length)
-        return jnp.concatenate([state.data.qpos[None], qpos]), jnp.concatenate([jnp.ones(1, bool), alive])
+        _, (qpos, alive, marks) = jax.lax.scan(one, (state, jnp.ones((), bool)), None, length=length)
+        first = lambda x, xs: jnp.concatenate([x[None], xs])  # noqa: E731
+        marks = first(env.markers(state.task), marks)
+        return first(state.data.qpos, qpos), first(jnp.ones((), bool), alive), marks
 
     return rollout
 
 
+def rollout_frames(env, act, params, key, length: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(T, nq) positions and (T, M, 3) marker positions of one deterministic episode (until it
+    ends, at most ``length`` steps)."""
+    qpos, alive, marks = jax.device_get(jax.jit(make_rollout(env, act, length))(params, key))
+    alive = np.asarray(alive)
+    return np.asarray(qpos)[alive], np.asarray(marks)[alive]
+
+
 def rollout_qpos(env, act, params, key, length: int | None = None) -> np.ndarray:
     """(T, nq) positions of one deterministic episode (until it ends, at most ``length`` steps)."""
-    qpos, alive = jax.device_get(jax.jit(make_rollout(env, act, length))(params, key))
-    return np.asarray(qpos)[np.asarray(alive)]
+    return rollout_frames(env, act, params, key, length)[0]
 
 
 def main(argv=None) -> int:
@@ -93,13 +103,13 @@ def _show(args, rc, env, learner, params, env_steps: int) -> int:
     try:
         if args.video:
             viewer.video.check_format(args.video)  # before the rollout: fail fast
-        traj = rollout_qpos(env, learner.act, params, jax.random.PRNGKey(args.seed), args.steps)
+        traj, marks = rollout_frames(env, learner.act, params, jax.random.PRNGKey(args.seed), args.steps)
         if args.export:
             np.savez(args.export, qpos=traj, env=rc.env.name, dt=env.dt)
             print(f"wrote {args.export} ({len(traj)} frames)")
         if args.html:
             title = f"{rc.env.name} / {rc.algo_name} at {env_steps:,d} env steps"
-            path = viewer.write_html(env, traj, args.html, title)
+            path = viewer.write_html(env, traj, args.html, title, markers=marks)
             print(f"wrote {path} ({len(traj)} frames, {path.stat().st_size / 1e6:.2f} MB)")
         if args.video:
             print(f"wrote {viewer.render_video(env, traj, args.video)} ({len(traj)} frames)")

@@ -125,3 +125,21 @@ def test_training_run_writes_viewer_pages_and_evaluate_cli(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
     assert evaluate.main([str(run_dir), "--episodes", "2", "--video", str(tmp_path / "x.avi")]) == 2
     assert "unsupported video format" in capsys.readouterr().err
+
+
+def test_goal_markers_are_embedded_and_drawn(tmp_path):
+    arm = envs.make("arm_reach")
+    qpos = np.tile(np.asarray(arm.model.qpos0), (6, 1))
+    marks = np.tile([[[0.4, 0.1, 0.3]]], (6, 1, 1))
+    data = scene.build_scene(arm, qpos, markers=marks)
+    assert data["nmarker"] == 1 and data["markers"][:3] == [0.4, 0.1, 0.3] and len(data["markers"]) == 18
+    assert scene.build_scene(arm, qpos)["nmarker"] == 0
+    with pytest.raises(ValueError, match="markers has shape"):
+        scene.build_scene(arm, qpos, markers=marks[:3])
+    if chromium.find_chromium() is None:
+        pytest.skip("no chromium on PATH (apt-get install chromium)")
+    dom, _ = chromium.dump_dom(
+        viewer.write_html(arm, qpos, tmp_path / "arm.html", markers=marks), budget_ms=1500
+    )
+    assert re.search(r'<pre id="errors"[^>]*>(.*?)</pre>', dom, re.S)[1] == ""
+    assert int(re.search(r'<span id="frame">(\d+)</span>', dom)[1]) > 0

@@ -203,6 +203,10 @@ class Env:
     def _observe_task(self, model: Model, data: Data, task: dict) -> jax.Array:
         return self._observe(model, data)
 
+    def markers(self, task: dict) -> jax.Array:
+        """(M, 3) world positions a viewer should mark (a goal env's targets); (0, 3) by default."""
+        return jnp.zeros((0, 3), self.model.qpos0.dtype)
+
     def _reward_task(
         self, model: Model, before: Data, after: Data, action: jax.Array, task: dict, key: jax.Array
     ) -> tuple[dict, jax.Array, dict, dict]:

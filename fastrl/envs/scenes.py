@@ -52,6 +52,9 @@ class ArmReach(Env):
         height = jax.random.uniform(k3, (), dtype, *self.target_height)
         return {"target": jnp.stack([radius * jnp.cos(angle), radius * jnp.sin(angle), height])}
 
+    def markers(self, task):
+        return task["target"][None]
+
     def _flange(self, data):
         return data.site_xpos[0]
 
@@ -99,6 +102,9 @@ class AntGoal(Ant):
         angle = jax.random.uniform(k1, (), torso_xy.dtype, 0.0, 2 * jnp.pi)
         radius = jax.random.uniform(k2, (), torso_xy.dtype, *self.target_radius)
         return torso_xy + radius * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+
+    def markers(self, task):
+        return jnp.concatenate([task["target"], jnp.zeros(1, task["target"].dtype)])[None]
 
     def _sample_task(self, key, model, data):
         target = self._new_target(key, data.xpos[self.main_body, :2])

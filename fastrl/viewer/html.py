@@ -95,7 +95,12 @@ def page(scene: dict) -> str:
 
 
 def write_html(
-    env, qpos: np.ndarray, path: str | Path, title: str = "", asset: str | Path | None = None
+    env,
+    qpos: np.ndarray,
+    path: str | Path,
+    title: str = "",
+    asset: str | Path | None = None,
+    markers: np.ndarray | None = None,
 ) -> Path:
     """Writes a self-contained HTML viewer of a trajectory of ``env``.
 
@@ -105,12 +110,13 @@ def write_html(
       path: the ``.html`` file to write (parent folders are created).
       title: a line shown in the page's control bar (default: the env's name).
       asset: the env's MJCF file, if it was built with a non-default ``asset=``.
+      markers: (T, M, 3) goal positions per frame, drawn as red spheres (``env.markers``).
     Returns:
       The path written.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(page(build_scene(env, qpos, title, asset)), encoding="utf-8")
+    path.write_text(page(build_scene(env, qpos, title, asset, markers)), encoding="utf-8")
     return path
 
 
@@ -134,9 +140,9 @@ def make_run_writer(env, act: Callable, title: str = "", batched: bool = False, 
     def write(run_dir: str | Path, chunk: int, params, key: jax.Array) -> Path:
         if batched:
             params = jax.tree.map(lambda x: x[0], params)
-        qpos, alive = jax.device_get(rollout(params, key))
+        qpos, alive, marks = jax.device_get(rollout(params, key))
         out = Path(run_dir) / "viewer" / f"chunk_{chunk:06d}.html"
-        path = write_html(env, qpos[alive], out, f"{title or env.name}, chunk {chunk}")
+        path = write_html(env, qpos[alive], out, f"{title or env.name}, chunk {chunk}", markers=marks[alive])
         shutil.copyfile(path, Path(run_dir) / "viewer.html")
         return path
 

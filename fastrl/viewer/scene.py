@@ -124,7 +124,9 @@ def _framing(m: mujoco.MjModel, root_pos: np.ndarray, geom_xpos: np.ndarray) -> 
     return max(float(reach.max()), 0.1), ground
 
 
-def build_scene(env, qpos: np.ndarray, title: str = "", asset: str | Path | None = None) -> dict:
+def build_scene(
+    env, qpos: np.ndarray, title: str = "", asset: str | Path | None = None, markers: np.ndarray | None = None
+) -> dict:
     """The JSON-ready scene of a trajectory of ``env``: static geoms plus per-frame body poses.
 
     Args:
@@ -132,12 +134,17 @@ def build_scene(env, qpos: np.ndarray, title: str = "", asset: str | Path | None
       qpos: (T, nq) positions, e.g. from ``fastrl.evaluate.rollout_qpos``.
       title: a line shown above the view.
       asset: the env's MJCF file when it was built with a non-default ``asset=``.
+      markers: (T, M, 3) goal positions per frame (None: none).
     Returns:
       A dict: ``geoms`` (type, size, rgba, body, pos, quat, mesh), ``meshes``, ``nbody``,
       ``nframe``, ``dt``, ``root`` (body to follow), ``radius``, ``ground``, ``has_plane`` and
-      ``frames``, the (T, nbody, 7) poses ``[x, y, z, qw, qx, qy, qz]`` flattened.
+      ``frames``, the (T, nbody, 7) poses ``[x, y, z, qw, qx, qy, qz]`` flattened, and
+      ``nmarker`` with ``markers``, the (T, M, 3) goal positions flattened.
     """
     qpos = np.asarray(qpos)
+    markers = np.zeros((len(qpos), 0, 3)) if markers is None else np.asarray(markers, float)
+    if markers.ndim != 3 or markers.shape[0] != len(qpos) or markers.shape[2] != 3:
+        raise ValueError(f"markers has shape {markers.shape}; expected ({len(qpos)}, M, 3)")
     if qpos.ndim != 2 or qpos.shape[1] != env.model.nq or len(qpos) == 0:
         raise ValueError(f"qpos has shape {qpos.shape}; expected (T, {env.model.nq}) with T >= 1")
     m = load_mj_model(env, asset)
@@ -158,6 +165,8 @@ def build_scene(env, qpos: np.ndarray, title: str = "", asset: str | Path | None
         "geoms": geoms,
         "meshes": meshes,
         "frames": _rounded(frames.reshape(-1)),
+        "nmarker": int(markers.shape[1]),
+        "markers": _rounded(markers.reshape(-1)),
     }
 
 

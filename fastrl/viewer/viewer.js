@@ -260,6 +260,14 @@
     const g = { type: PLANE, body: 0, pos: [0, 0, scene.ground], quat: [1, 0, 0, 0], rgba: [0.75, 0.77, 0.8, 1] };
     items.push({ g, buf: upload(plane(50 * scene.radius, 50 * scene.radius)), cell });
   }
+  // Goals (a goal env's targets): red spheres placed per frame, drawn after the robot.
+  const markerItem = scene.nmarker
+    ? { g: { rgba: [0.9, 0.15, 0.1, 0.85] }, buf: upload(ellipsoid(0.04 * scene.radius, 0.04 * scene.radius, 0.04 * scene.radius)) }
+    : null;
+  function markerPos(frame, i) {
+    const o = (frame * scene.nmarker + i) * 3, m = scene.markers;
+    return [m[o], m[o + 1], m[o + 2]];
+  }
   // Opaque geoms first; translucent ones after, blended, without writing depth.
   items.sort((a, b) => (a.g.rgba[3] < 1) - (b.g.rgba[3] < 1));
 
@@ -381,6 +389,9 @@
     drawShadows(poses);
     gl.uniform1f(loc.u_flat, 0);
     items.forEach((it, i) => { if (!it.cell) drawItem(it, poses[i], it.g.rgba, 0); });
+    for (let i = 0; markerItem && i < scene.nmarker; i++) {
+      drawItem(markerItem, poseMatrix(markerPos(frame, i), [1, 0, 0, 0]), markerItem.g.rgba, 0);
+    }
     $("frame").textContent = String(frame);
     $("time").textContent = (frame * scene.dt).toFixed(2) + " s";
     $("slider").value = String(frame);
