@@ -27,6 +27,8 @@ PRIMITIVES = {
     (GeomType.SPHERE, GeomType.BOX): (prim.sphere_box, 1),
     (GeomType.CAPSULE, GeomType.CAPSULE): (prim.capsule_capsule, 1),
     (GeomType.CAPSULE, GeomType.CYLINDER): (prim.capsule_cylinder, 1),
+    (GeomType.CAPSULE, GeomType.BOX): (prim.capsule_box, 3),
+    (GeomType.BOX, GeomType.BOX): (prim.box_box, 16),
 }
 
 

@@ -407,3 +407,73 @@ def capsule_cylinder(c_pos, c_mat, c_size, y_pos, y_mat, y_size):
     normal = jnp.where(apart, n_apart, n_deep)
     dist = jnp.where(apart, gap - cap_r, -depth)
     return _one(dist, y_pos + y_mat @ pos, y_mat @ normal)
+
+
+def _box_sdf_slope(local, d, half):
+    """Slope along ``d`` of a box's signed distance at the box-frame point ``local``."""
+    q = jnp.abs(local) - half
+    sign = jnp.where(local >= 0, 1.0, -1.0)
+    out = jnp.maximum(q, 0.0)
+    outward, n = _normalize(out * sign)
+    face = jnp.zeros(3, local.dtype).at[jnp.argmax(q)].set(1.0) * sign
+    return dot(jnp.where(n > 0, outward, face), d)
+
+
+def capsule_box(c_pos, c_mat, c_size, b_pos, b_mat, b_size):
+    """Three contacts: each end sphere of the capsule against the box, and the capsule's deepest
+    point along its segment (the box's signed distance is convex along a line, so a section
+    search on its slope finds it; a tiny pull towards the segment's middle picks one point where
+    a face is parallel to the segment).
+
+    A capsule lying on a face gets the two end contacts MuJoCo's mjc_CapsuleBox gives it; the
+    middle candidate is dropped (dist set far beyond any margin) when it repeats an end, i.e.
+    both ends are as deep as it or it sits at an end. A capsule across an edge (a finger over a
+    cube's edge) keeps the middle one there.
+    """
+    a, b = ((p - b_pos) @ b_mat for p in _segment_ends(c_pos, c_mat, c_size[1]))
+    d = b - a
+    pull = 1e-3 * dot(d, d)
+
+    def descending(t):
+        pts = a + t[..., None] * d
+        slope = jax.vmap(lambda p: _box_sdf_slope(p, d, b_size))(pts.reshape(-1, 3)).reshape(t.shape)
+        return slope + pull * (t - 0.5) < 0
+
+    zero = jnp.zeros((), a.dtype)
+    t = jax.lax.stop_gradient(_section_search(descending, zero, zero + 1.0))
+    world = lambda p: b_pos + b_mat @ p  # noqa: E731
+    centres = jnp.stack([world(a), world(b), world(a + t * d)])
+    dist, pos, normal, tangent = jax.vmap(
+        lambda s: sphere_box(s, c_mat, c_size, b_pos, b_mat, b_size)
+    )(centres)
+    dist, pos, normal, tangent = dist[:, 0], pos[:, 0], normal[:, 0], tangent[:, 0]
+    tol = 1e-6 + 1e-4 * c_size[0]
+    repeats = ((jnp.abs(dist[2] - dist[0]) < tol) & (jnp.abs(dist[2] - dist[1]) < tol)) | (t < 1e-2) | (t > 1 - 1e-2)
+    dist = dist.at[2].set(jnp.where(repeats, _FAR, dist[2]))
+    return dist, pos, normal, tangent
+
+
+_FAR = 1e6  # a candidate's dist when it is dropped: beyond any margin, so masked as inactive
+
+
+def box_box(pos1, mat1, size1, pos2, mat2, size2):
+    """Sixteen contacts: every corner of each box against the other box (point-box, as
+    ``sphere_box`` with radius 0), the normal always from box 1 to box 2.
+
+    This covers a face or edge resting on a face (its corners, the contacts MuJoCo's mjc_BoxBox
+    clips to when one face lies within the other) and a corner pressed into a face. Two edges
+    crossing with no corner inside the other box give no contact until a corner enters, where
+    MuJoCo's edge-edge test gives one; scenes here rest boxes face to face.
+    """
+    corners = jnp.asarray(_BOX_CORNERS, size1.dtype)
+    zero = jnp.zeros(1, size1.dtype)
+
+    def against(c_pos, c_mat, c_size, o_pos, o_mat, o_size):
+        pts = c_pos + (corners * c_size) @ c_mat.T
+        out = jax.vmap(lambda p: sphere_box(p, c_mat, zero, o_pos, o_mat, o_size))(pts)
+        return tuple(x[:, 0] for x in out)
+
+    d1, p1, n1, t1 = against(pos1, mat1, size1, pos2, mat2, size2)
+    d2, p2, n2, t2 = against(pos2, mat2, size2, pos1, mat1, size1)
+    cat = lambda x, y: jnp.concatenate([x, y])  # noqa: E731
+    return cat(d1, d2), cat(p1, p2), cat(n1, -n2), cat(t1, t2)
