@@ -29,6 +29,8 @@ for _cls in (
     manipulation.InvertedPendulum,
     manipulation.InvertedDoublePendulum,
     scenes.ArmReach,
+    scenes.ArmPush,
+    scenes.HandReorient,
     scenes.AntGoal,
 ):
     register(_cls)

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 
 from fastrl.envs.base import Env
 from fastrl.envs.locomotion import Ant
+from fastrl.physics.math import quat_conj, quat_mul, quat_rotate
 
 
 class ArmReach(Env):
@@ -73,6 +74,168 @@ class ArmReach(Env):
             "velocity": -w["velocity"] * jnp.sum(after.qvel**2),
         }
         return terms, jnp.zeros((), bool), {"distance": dist, "success": success}, task
+
+
+class ArmPush(ArmReach):
+    """The arm of ``arm_reach`` pushes a block to a goal on its table (``env=arm_push``).
+
+    The block (a 10 cm cube, 0.5 kg) starts at a uniform angle within ``block_angle`` of the
+    arm's +x side and a distance in ``block_radius`` from its base; the goal lies
+    ``goal_offset`` (10-25 cm) from the block in any direction, kept within ``goal_radius`` of
+    the base. Only the tool sphere at the flange touches the block (see ``arm_push.xml``). An
+    episode lasts 200 steps of 0.02 s; success means the block's centre is within
+    ``success_tolerance`` (5 cm, horizontally) of the goal at the episode's last step.
+
+    Observation (38): cos and sin of the six joint angles, joint velocities (6), tool position
+    (3), block position (3), block orientation (quaternion, 4), block velocity (3), goal (2),
+    block minus tool (3), goal minus block (2).
+    Reward: ``dist`` -|goal - block| (2), ``near`` -|block - tool| (0.5), ``bonus`` +1 while
+    within the tolerance (1), ``velocity`` -|arm qvel|^2 (0.005).
+    """
+
+    name = "arm_push"
+    asset = "arm_push.xml"
+    default_episode_length = 200
+    default_weights = {"dist": 2.0, "near": 0.5, "bonus": 1.0, "velocity": 0.005}
+    smooth_gradients = False
+    gradient_note = "the block moves only while the tool touches it: contact switches the gradient on and off"
+    block_radius = (0.35, 0.55)
+    block_angle = 0.25 * jnp.pi
+    goal_offset = (0.1, 0.25)
+    goal_radius = (0.3, 0.7)
+
+    def _reset_qpos_qvel(self, key, model):
+        k_arm, k_angle, k_radius = jax.random.split(key, 3)
+        dtype = model.qpos0.dtype
+        arm = model.qpos0[:6] + self.uniform(k_arm, (6,), self.reset_noise_scale)
+        angle = jax.random.uniform(k_angle, (), dtype, -self.block_angle, self.block_angle)
+        radius = jax.random.uniform(k_radius, (), dtype, *self.block_radius)
+        block = jnp.array([radius * jnp.cos(angle), radius * jnp.sin(angle)], dtype)
+        qpos = jnp.concatenate([arm, block, model.qpos0[8:]])  # resting on the table, unrotated
+        return qpos, jnp.zeros(model.nv, dtype)
+
+    def _sample_task(self, key, model, data):
+        k1, k2 = jax.random.split(key)
+        dtype = data.qpos.dtype
+        block = data.qpos[6:8]
+        angle = jax.random.uniform(k1, (), dtype, 0.0, 2 * jnp.pi)
+        offset = jax.random.uniform(k2, (), dtype, *self.goal_offset)
+        goal = block + offset * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+        norm = jnp.linalg.norm(goal)
+        goal = goal * jnp.clip(norm, *self.goal_radius) / norm  # stays on the arm's side of reach
+        return {"target": goal}
+
+    def markers(self, task):
+        return jnp.concatenate([task["target"], jnp.zeros(1, task["target"].dtype)])[None]
+
+    def _tool(self, data):
+        return data.site_xpos[1]
+
+    def _observe_task(self, model, data, task):
+        q, tool, block, goal = data.qpos[:6], self._tool(data), data.qpos[6:9], task["target"]
+        return jnp.concatenate([
+            jnp.cos(q), jnp.sin(q), data.qvel[:6], tool, block, data.qpos[9:13], data.qvel[6:9],
+            goal, block - tool, goal - block[:2],
+        ])  # fmt: skip
+
+    def _reward_task(self, model, before, after, action, task, key):
+        w = self.reward_weights
+        block = after.qpos[6:9]
+        dist = jnp.linalg.norm(task["target"] - block[:2])
+        near = jnp.linalg.norm(block - self._tool(after))
+        success = (dist < self.success_tolerance).astype(dist.dtype)
+        terms = {
+            "dist": -w["dist"] * dist,
+            "near": -w["near"] * near,
+            "bonus": w["bonus"] * success,
+            "velocity": -w["velocity"] * jnp.sum(after.qvel[:6] ** 2),
+        }
+        return terms, jnp.zeros((), bool), {"distance": dist, "success": success}, task
+
+
+def _yaw_quat(yaw: jax.Array) -> jax.Array:
+    return jnp.stack([jnp.cos(yaw / 2), jnp.zeros_like(yaw), jnp.zeros_like(yaw), jnp.sin(yaw / 2)])
+
+
+def _rotation_angle(q: jax.Array) -> jax.Array:
+    """Angle (0 to pi) of the rotation a unit quaternion makes; smooth where it is not zero."""
+    return 2 * jnp.arctan2(jnp.linalg.norm(q[1:] + 1e-12), jnp.abs(q[0]))
+
+
+class HandReorient(Env):
+    """A four-fingered hand turns a cube in its palm to a target orientation (``env=hand_reorient``).
+
+    The cube starts resting at the palm's centre at a random heading; the target is the cube
+    turned about the vertical to a heading uniform within ``target_yaw`` (+-180 degrees) of the
+    start, with its faces level (the cube's faces are distinct: a mark on one of them shows the
+    heading). The cube is dropped (``terminated``) when its centre falls 1.5 cm below its resting
+    height or leaves the palm's square. An episode lasts 150 steps of 0.04 s; success means the
+    orientation error is below ``success_tolerance`` (0.4 rad, as in OpenAI's in-hand cube
+    work) at the episode's last step.
+
+    Observation (45): joint angles and velocities (12 each), cube position relative to its
+    resting point (3), cube orientation (4), cube linear and angular velocity (3 each), target
+    orientation (4), and the rotation from cube to target (4); quaternions with w >= 0.
+    Reward: ``rotate`` the decrease of the orientation error this step (radians, weight 5),
+    ``bonus`` +1 while within the tolerance (0.5), ``drop`` -1 when the cube is dropped (20).
+    """
+
+    name = "hand_reorient"
+    asset = "hand.xml"
+    default_frame_skip = 4
+    default_episode_length = 150
+    default_weights = {"rotate": 5.0, "bonus": 0.5, "drop": 20.0}
+    default_reset_noise_scale = 0.05
+    eval_metrics = ("success", "dropped")
+    success_tolerance = 0.4
+    target_yaw = jnp.pi
+    rest_height = 0.135
+    palm_half = 0.075
+    drop_depth = 0.015
+
+    def _reset_qpos_qvel(self, key, model):
+        k_hand, k_xy, k_yaw = jax.random.split(key, 3)
+        dtype = model.qpos0.dtype
+        hand = model.qpos0[:12] + self.uniform(k_hand, (12,), self.reset_noise_scale)
+        xy = self.uniform(k_xy, (2,), 0.005)
+        yaw = jax.random.uniform(k_yaw, (), dtype, -jnp.pi, jnp.pi)
+        cube = jnp.concatenate([xy, jnp.full((1,), self.rest_height, dtype), _yaw_quat(yaw)])
+        return jnp.concatenate([hand, cube]), jnp.zeros(model.nv, dtype)
+
+    def _sample_task(self, key, model, data):
+        turn = jax.random.uniform(key, (), data.qpos.dtype, -self.target_yaw, self.target_yaw)
+        return {"target": quat_mul(_yaw_quat(turn), data.qpos[15:19])}
+
+    def _error(self, data, task):
+        return _rotation_angle(quat_mul(quat_conj(data.qpos[15:19]), task["target"]))
+
+    def markers(self, task):
+        # where the cube's marked face should point, 3.2 cm out from the palm's resting point
+        heading = quat_rotate(task["target"], jnp.array([0.032, 0.0, 0.0], task["target"].dtype))
+        return (jnp.array([0.0, 0.0, self.rest_height], heading.dtype) + heading)[None]
+
+    def _observe_task(self, model, data, task):
+        up = lambda q: jnp.where(q[0] < 0, -q, q)  # noqa: E731
+        cube_q = data.qpos[15:19]
+        offset = data.qpos[12:15] - jnp.array([0.0, 0.0, self.rest_height], data.qpos.dtype)
+        return jnp.concatenate([
+            data.qpos[:12], data.qvel[:12], offset, up(cube_q), data.qvel[12:18], up(task["target"]),
+            up(quat_mul(quat_conj(cube_q), task["target"])),
+        ])  # fmt: skip
+
+    def _reward_task(self, model, before, after, action, task, key):
+        w = self.reward_weights
+        err_before, err_after = self._error(before, task), self._error(after, task)
+        pos = after.qpos[12:15]
+        dropped = (pos[2] < self.rest_height - self.drop_depth) | jnp.any(jnp.abs(pos[:2]) > self.palm_half)
+        success = (err_after < self.success_tolerance).astype(err_after.dtype)
+        terms = {
+            "rotate": w["rotate"] * (err_before - err_after),
+            "bonus": w["bonus"] * success,
+            "drop": -w["drop"] * dropped.astype(err_after.dtype),
+        }
+        extra = {"orientation_error": err_after, "success": success, "dropped": dropped.astype(success.dtype)}
+        return terms, dropped, extra, task
 
 
 class AntGoal(Ant):

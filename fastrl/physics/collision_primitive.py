@@ -428,7 +428,10 @@ def capsule_box(c_pos, c_mat, c_size, b_pos, b_mat, b_size):
     A capsule lying on a face gets the two end contacts MuJoCo's mjc_CapsuleBox gives it; the
     middle candidate is dropped (dist set far beyond any margin) when it repeats an end, i.e.
     both ends are as deep as it or it sits at an end. A capsule across an edge (a finger over a
-    cube's edge) keeps the middle one there.
+    cube's edge) keeps the middle one there. One known difference: a capsule lying along a
+    face and reaching past its edge gets from MuJoCo a second, shallower contact where the
+    segment leaves the face; here it has the deepest point only (until an end reaches the face),
+    so such a touch holds a little less firmly.
     """
     a, b = ((p - b_pos) @ b_mat for p in _segment_ends(c_pos, c_mat, c_size[1]))
     d = b - a
