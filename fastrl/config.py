@@ -166,6 +166,7 @@ class EnvConfig:
       solver_iterations   constraint solver iterations
       integrator          "euler" or "rk4"
       timestep            physics timestep
+      options             env-specific constructor options (e.g. hand_reorient's ``target``)
     """
 
     name: str = "ant"
@@ -177,16 +178,23 @@ class EnvConfig:
     solver_iterations: int | None = None
     integrator: str | None = None
     timestep: float | None = None
+    options: dict = dataclasses.field(default_factory=dict)
 
     def make(self):
         from fastrl import envs
 
-        kwargs = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "name"}
+        skip = ("name", "options")
+        kwargs = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in skip}
         kwargs = {k: v for k, v in kwargs.items() if v is not None and v != {}}
+        clash = sorted(set(self.options) & {f.name for f in dataclasses.fields(self)})
+        if clash:
+            raise ConfigError(f"env.options.{clash[0]}: set it as env.{clash[0]}, not among the options")
         try:
-            return envs.make(self.name, **kwargs)
+            return envs.make(self.name, **kwargs, **self.options)
         except ValueError as e:
             raise ConfigError(f"env: {e}") from None
+        except TypeError as e:
+            raise ConfigError(f"env.options of {self.name}: {e}") from None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,8 +6,12 @@ evaluation reads it at the end of every episode (``eval_metrics``).
 
 from __future__ import annotations
 
+import itertools
+
 import jax
 import jax.numpy as jnp
+import mujoco
+import numpy as np
 
 from fastrl.envs.base import Env
 from fastrl.envs.locomotion import Ant
@@ -89,14 +93,16 @@ class ArmPush(ArmReach):
     Observation (38): cos and sin of the six joint angles, joint velocities (6), tool position
     (3), block position (3), block orientation (quaternion, 4), block velocity (3), goal (2),
     block minus tool (3), goal minus block (2).
-    Reward: ``dist`` -|goal - block| (2), ``near`` -|block - tool| (0.5), ``bonus`` +1 while
-    within the tolerance (1), ``velocity`` -|arm qvel|^2 (0.005).
+    Reward: ``dist`` -|goal - block| (2), ``progress`` the block's speed towards the goal (2),
+    ``near`` -|push point - tool| (0.5) where the push point is behind the block, on the far
+    side from the goal at the block's mid-height (where the tool must be to push it there),
+    ``bonus`` +1 while within the tolerance (1), ``velocity`` -|arm qvel|^2 (0.005).
     """
 
     name = "arm_push"
     asset = "arm_push.xml"
     default_episode_length = 200
-    default_weights = {"dist": 2.0, "near": 0.5, "bonus": 1.0, "velocity": 0.005}
+    default_weights = {"dist": 2.0, "progress": 2.0, "near": 0.5, "bonus": 1.0, "velocity": 0.005}
     smooth_gradients = False
     gradient_note = "the block moves only while the tool touches it: contact switches the gradient on and off"
     block_radius = (0.35, 0.55)
@@ -138,14 +144,23 @@ class ArmPush(ArmReach):
             goal, block - tool, goal - block[:2],
         ])  # fmt: skip
 
+    def _push_point(self, block, goal):
+        """Where the tool's centre must be to push the block straight at the goal."""
+        offset = goal - block[:2]
+        heading = offset / jnp.maximum(jnp.linalg.norm(offset), 1e-6)
+        reach = 0.05 + 0.03 + 0.01  # block half-size + tool radius + a centimetre's clearance
+        return jnp.concatenate([block[:2] - reach * heading, block[2:3]])
+
     def _reward_task(self, model, before, after, action, task, key):
         w = self.reward_weights
-        block = after.qpos[6:9]
-        dist = jnp.linalg.norm(task["target"] - block[:2])
-        near = jnp.linalg.norm(block - self._tool(after))
+        goal, block = task["target"], after.qpos[6:9]
+        dist = jnp.linalg.norm(goal - block[:2])
+        dist_before = jnp.linalg.norm(goal - before.qpos[6:8])
+        near = jnp.linalg.norm(self._push_point(block, goal) - self._tool(after))
         success = (dist < self.success_tolerance).astype(dist.dtype)
         terms = {
             "dist": -w["dist"] * dist,
+            "progress": w["progress"] * (dist_before - dist) / self.dt,
             "near": -w["near"] * near,
             "bonus": w["bonus"] * success,
             "velocity": -w["velocity"] * jnp.sum(after.qvel[:6] ** 2),
@@ -162,13 +177,31 @@ def _rotation_angle(q: jax.Array) -> jax.Array:
     return 2 * jnp.arctan2(jnp.linalg.norm(q[1:] + 1e-12), jnp.abs(q[0]))
 
 
+def _cube_rotations() -> np.ndarray:
+    """(24, 4) the rotations mapping a cube onto itself, as unit quaternions (w >= 0)."""
+    found = []
+    for axes in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            mat = np.zeros((3, 3))
+            mat[range(3), axes] = signs
+            if np.linalg.det(mat) > 0:
+                quat = np.zeros(4)
+                mujoco.mju_mat2Quat(quat, mat.reshape(-1))
+                found.append(quat if quat[0] >= 0 else -quat)
+    return np.array(found)
+
+
+_CUBE_ROTATIONS = _cube_rotations()
+
+
 class HandReorient(Env):
     """A four-fingered hand turns a cube in its palm to a target orientation (``env=hand_reorient``).
 
     The cube starts resting at the palm's centre at a random heading; the target is the cube
     turned about the vertical to a heading uniform within ``target_yaw`` (+-180 degrees) of the
     start, with its faces level (the cube's faces are distinct: a mark on one of them shows the
-    heading). The cube is dropped (``terminated``) when its centre falls 1.5 cm below its resting
+    heading). With ``target="faces"`` the target also has a random face up (one of the cube's
+    24 rotations, then the turn): the fingers must roll the cube over, a far harder task. The cube is dropped (``terminated``) when its centre falls 1.5 cm below its resting
     height or leaves the palm's square. An episode lasts 150 steps of 0.04 s; success means the
     orientation error is below ``success_tolerance`` (0.4 rad, as in OpenAI's in-hand cube
     work) at the episode's last step.
@@ -193,6 +226,14 @@ class HandReorient(Env):
     palm_half = 0.075
     drop_depth = 0.015
 
+    TARGETS = ("yaw", "faces")
+
+    def __init__(self, *, target: str = "yaw", **kwargs):
+        if target not in self.TARGETS:
+            raise ValueError(f"hand_reorient: target={target!r}; choose one of {list(self.TARGETS)}")
+        self.target = target
+        super().__init__(**kwargs)
+
     def _reset_qpos_qvel(self, key, model):
         k_hand, k_xy, k_yaw = jax.random.split(key, 3)
         dtype = model.qpos0.dtype
@@ -203,8 +244,13 @@ class HandReorient(Env):
         return jnp.concatenate([hand, cube]), jnp.zeros(model.nv, dtype)
 
     def _sample_task(self, key, model, data):
-        turn = jax.random.uniform(key, (), data.qpos.dtype, -self.target_yaw, self.target_yaw)
-        return {"target": quat_mul(_yaw_quat(turn), data.qpos[15:19])}
+        k_turn, k_face = jax.random.split(key)
+        turn = jax.random.uniform(k_turn, (), data.qpos.dtype, -self.target_yaw, self.target_yaw)
+        target = quat_mul(_yaw_quat(turn), data.qpos[15:19])
+        if self.target == "faces":  # any face up: one of the cube's 24 rotations, then the turn
+            symmetries = jnp.asarray(_CUBE_ROTATIONS, data.qpos.dtype)
+            target = quat_mul(target, symmetries[jax.random.randint(k_face, (), 0, 24)])
+        return {"target": target}
 
     def _error(self, data, task):
         return _rotation_angle(quat_mul(quat_conj(data.qpos[15:19]), task["target"]))

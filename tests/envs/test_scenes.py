@@ -225,3 +225,18 @@ def test_hand_cube_rests_and_follows_mujoco_under_random_finger_targets():
         cube_err.append(np.linalg.norm(cube - md.qpos[12:15]))
     assert np.median(cube_err) < 0.02  # the contact issue's bound: 2 cm
     assert max(cube_err) < 0.03
+
+
+def test_hand_reorient_faces_targets_put_every_face_up():
+    from fastrl.envs.scenes import _CUBE_ROTATIONS
+
+    assert len({tuple(np.round(q, 6)) for q in _CUBE_ROTATIONS}) == 24
+    env = envs.make("hand_reorient", target="faces")
+    s = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 600))
+    from fastrl.physics.math import quat_conj, quat_rotate
+
+    # the cube-frame axis that points up in the target: each of the six faces, about equally often
+    up = np.asarray(jax.vmap(lambda q: quat_rotate(quat_conj(q), jnp.array([0.0, 0.0, 1.0])))(s.task["target"]))
+    faces = np.argmax(np.abs(up), axis=1) * 2 + (up[np.arange(600), np.argmax(np.abs(up), axis=1)] < 0)
+    counts = np.bincount(faces, minlength=6)
+    assert counts.min() > 600 / 6 * 0.6

@@ -73,6 +73,17 @@ def test_config_errors_name_the_key_before_compiling():
         typed(["env=antt"])
 
 
+def test_env_options_reach_the_env_and_bad_ones_are_named():
+    env = typed(["env=hand_reorient", "algo=ppo", "env.options.target=faces"]).env.make()
+    assert env.target == "faces"
+    with pytest.raises(ConfigError, match="target='spin'.*'yaw', 'faces'"):
+        typed(["env=hand_reorient", "algo=ppo", "env.options.target=spin"]).env.make()
+    with pytest.raises(ConfigError, match="env.options of ant.*'target'"):
+        typed(["env=ant", "algo=ppo", "+env.options.target=faces"]).env.make()
+    with pytest.raises(ConfigError, match="set it as env.frame_skip"):
+        typed(["env=hand_reorient", "algo=ppo", "+env.options.frame_skip=2"]).env.make()
+
+
 def _weights_of(run_dir):
     """The leaves of the latest checkpoint's training state, and its step."""
     from fastrl.policy import load_run
