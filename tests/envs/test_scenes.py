@@ -186,8 +186,24 @@ def test_hand_reorient_targets_drop_and_success():
     assert float(done.metrics["reward_bonus"]) == pytest.approx(0.5)
     # lifted off the palm's square: dropped, terminated, penalised
     qpos = one.data.qpos.at[12].set(0.09)
-    dropped = step(env.reset_to(qpos, jnp.zeros(env.model.nv)), hold)
+    before = env.reset_to(qpos, jnp.zeros(env.model.nv), key=jax.random.PRNGKey(5))
+    dropped = step(before, hold)
     assert bool(dropped.terminated) and float(dropped.metrics["reward_drop"]) == -20.0
+    # auto-reset: a fresh episode, the cube back on the palm with a new target
+    assert float(dropped.data.qpos[14]) == pytest.approx(env.rest_height)
+    assert not np.allclose(np.asarray(dropped.task["target"]), np.asarray(before.task["target"]))
+
+    # deterministic: the same keys and actions give the same states
+    batch = jax.tree.map(lambda x: x[:4], s)
+    actions = jax.random.uniform(jax.random.PRNGKey(3), (10, 4, 12), minval=-0.4, maxval=0.6)
+    step_b = jax.jit(jax.vmap(env.step))
+    runs = []
+    for _ in range(2):
+        b = batch
+        for a in actions:
+            b = step_b(b, a)
+        runs.append(np.asarray(b.data.qpos))
+    np.testing.assert_array_equal(runs[0], runs[1])
 
 
 def test_hand_cube_rests_and_follows_mujoco_under_random_finger_targets():
