@@ -47,3 +47,20 @@ def test_bench_envs_quick(tmp_path):
     result = _run_quick("bench_envs.py", tmp_path, "env_throughput_quick.json")
     assert all(r["control_steps_per_s"] > 0 and r["diverged"] == 0 for r in result["envs"])
     assert result["vector"]["ratio"] > 0
+
+
+def test_speed_accuracy_quick(tmp_path):
+    result = _run_quick("speed_accuracy.py", tmp_path, "speed_accuracy_quick.json")
+    (res,) = result["models"].values()
+    rows = res["rows"]
+    assert {r["engine"] for r in rows} == {"fastrl", "MuJoCo C"}
+    assert all(r["control_steps_per_s"] > 0 and r["error"] is not None for r in rows)
+    assert sum(r["shipped"] for r in rows) == 1 and any(r["pareto"] for r in rows)
+    # The converged-vs-converged floor sits far below every setting, finer timesteps are more
+    # accurate, and fastrl (float32) and MuJoCo C err alike at the same timestep and integrator.
+    assert all(res["floor"] < 1e-3 * r["error"] for r in rows)
+    err = {(r["engine"], r["substeps"]): r["error"] for r in rows}
+    assert err["fastrl", 5] < 1e-2 * err["fastrl", 1]
+    assert all(0.5 < err["fastrl", n] / err["MuJoCo C", n] < 2 for n in (1, 5))
+    assert (tmp_path / "speed_accuracy_quick.png").stat().st_size > 0
+    assert (tmp_path / "speed_accuracy_quick.md").read_text().startswith("# Speed vs accuracy")

@@ -1,0 +1,495 @@
+"""Speed vs accuracy of fastrl's physics knobs on five models, with MuJoCo C on the same axes.
+
+    python experiments/speed_accuracy.py                         # all five models, ~45 min on 2 cores
+    python experiments/speed_accuracy.py --models ant hopper     # a subset
+    python experiments/speed_accuracy.py --quick                 # tiny, for CI
+
+Models: the Ant, HalfCheetah, Hopper and Humanoid (contacts) and the InvertedDoublePendulum (no
+contacts; its cart's joint limit, its only constraint, is not reached within its horizon). Each
+keeps its env's control step ``dt`` (frame_skip x the asset's timestep) across all settings, and
+every setting simulates the same sequences: start states from the env's ``reset`` with fixed
+keys, and uniform random controls in the actuators' ctrlrange, one per control step, held over
+its substeps.
+
+Swept: fastrl's integrator (euler, rk4) x timestep (dt / substeps, substeps 1, 2, 4, frame_skip
+and twice it) x constraint-solver iterations (2, 3, 5, 8; the loader default only for the
+contact-free model), in float32, its default; and MuJoCo C at the same timesteps with the asset's
+own integrator and solver options.
+
+Accuracy: error against a converged reference, MuJoCo C in float64 at 1/20 of the asset's
+timestep, Newton's solver with 100 iterations and tolerance 1e-12 (line search: 100, 1e-10), RK4
+for the contact-free model and the asset's integrator otherwise (RK4, but Euler for the
+HalfCheetah; the Humanoid asset's PGS solver gives way to Newton, which reaches the same converged
+solution). The error is the RMS over control steps and sequences of the distance between the
+root body's world position (body 1, the torso) and the reference's; for the fixed-base pendulum,
+whose root never moves, it is the RMS norm of the whole qpos difference (cart metres and hinge
+radians together). The same reference at 1/40 of the timestep gives the "floor", the error
+between two converged solutions. Contact-rich rollouts under random controls are chaotic: a
+finer reference lowers that floor slowly, and over longer horizons not at all (on the Ant, 1/160
+against 1/320 of the timestep disagree a sixth as much as 1/20 against 1/320 at 0.25 s, nearly as
+much at 1 s), so each model's horizon (``HORIZON_S``) is kept short enough for the floor to sit
+an order of magnitude below MuJoCo C's own error at the asset's timestep; it is reported with them.
+
+Speed: control steps/s of the jitted, vmapped control step (a loop of substeps inside) under
+``lax.scan`` at batch 1024, after compilation: the median of at least 3 timed calls and 1 s
+(a single call once one takes over 3 s). fastrl's work does not depend on the state (a static
+number of solver iterations, every contact slot evaluated), so it is timed on one control step of
+the batch; MuJoCo C's does, so ``mujoco.rollout`` (2 MjData: 2 threads, persistent pool) is timed
+over the whole horizon of the batch, whose first sequences also give its accuracy. The timestep
+and the substep count are runtime arguments of one compiled program per (integrator,
+iterations), so a model compiles 8 programs (x 2 batch shapes) instead of 40; on the Ant that
+program gives bit-identical trajectories and the same speed as one with them baked in.
+
+Shipped: the setting ``python -m fastrl.train env=<model>`` trains with, i.e. ``conf/env/<model>
+.yaml`` and ``conf/experiment/<model>_ppo.yaml`` over the env's defaults (the Ant: Euler at
+0.01 s x 5, 5 iterations; the others: the asset's integrator and timestep, 8 iterations).
+
+Writes ``experiments/results/speed_accuracy.{md,json,png}``: for each model every setting's
+speed and error, whether it is on the Pareto front of all points (no other point, fastrl or
+MuJoCo C, is both at least as fast and at least as accurate; errors within 2% plus the floor
+count as equal) and on that of fastrl's settings alone (the choice among fastrl's knobs), and
+whether it is the shipped one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import statistics
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import mujoco.rollout
+import numpy as np
+
+from fastrl import envs, physics
+from fastrl.envs.base import ASSETS
+from fastrl.physics import Integrator
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "experiments" / "results"
+MODELS = ("ant", "halfcheetah", "hopper", "humanoid", "inverted_double_pendulum")
+CONTACT_FREE = ("inverted_double_pendulum",)
+# Simulated seconds per sequence. Measured on these 16 sequences, the floor against MuJoCo C's
+# own error at the asset's timestep (x frame_skip) and half of it (x 2 frame_skip) is, for the
+# Ant, 1.5e-3 vs 1.8e-2 and 7e-3 m at 0.3 s (2e-2 vs 7e-2 and 6e-2 at 0.6 s); the HalfCheetah
+# 3e-3 vs 1.4e-1 and 3e-2 at 1 s (1.4e-2 vs 3e-1 and 1.1e-1 at 2 s); the Hopper 1.2e-5 vs 1.4e-4
+# and 9e-5 at 0.25 s; the Humanoid 1.1e-4 vs 2e-3 and 1e-3 at 0.5 s (2.4e-3 vs 1e-2 and 5e-3 at
+# 1 s). The pendulum is a smooth ODE until its cart reaches the joint limit, which none of 256
+# sequences does by 0.25 s (4 by 0.3 s): within 0.2 s its floor is 5e-12 against 9e-7.
+HORIZON_S = {"ant": 0.3, "halfcheetah": 1.0, "hopper": 0.25, "humanoid": 0.5, "inverted_double_pendulum": 0.2}
+ITERATIONS = (2, 3, 5, 8)
+BATCH = 1024  # speed
+SEQUENCES = 16  # accuracy: sequences compared with the reference
+PARETO_TOL = 0.02  # errors closer than this (relative) count as equal on the front
+REF_DIVISOR = 20  # reference timestep = asset timestep / REF_DIVISOR; the floor's, twice finer
+STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # time, qpos, qvel, ...: qpos starts at index 1
+
+
+# ---------------------------------------------------------------- the fixed problem of one model
+
+
+def shipped_overrides(name: str) -> dict:
+    """Physics keys set in ``conf/env/<name>.yaml``, then ``conf/experiment/<name>_ppo.yaml``."""
+    from omegaconf import OmegaConf
+
+    keys = ("integrator", "solver_iterations", "timestep", "frame_skip")
+    out = {}
+    for path in (ROOT / "conf" / "env" / f"{name}.yaml", ROOT / "conf" / "experiment" / f"{name}_ppo.yaml"):
+        if path.exists():
+            conf = OmegaConf.to_container(OmegaConf.load(path))
+            conf = (conf.get("env") or {}) if path.parent.name == "experiment" else conf
+            out.update({k: conf[k] for k in keys if conf.get(k) is not None})
+    return out
+
+
+def make_task(name: str, batch: int, horizon_s: float, seed: int = 0) -> dict:
+    """The model's fixed sequences (start states, controls) and its shipped physics setting."""
+    env = envs.make(name)
+    mj = mujoco.MjModel.from_xml_path(str(ASSETS / env.asset))
+    dt = mj.opt.timestep * env.frame_skip  # env.dt, without its float32 rounding
+    shipped = envs.make(name, **shipped_overrides(name))
+    steps = max(1, round(horizon_s / dt))
+    # Sequence i is drawn from its own key, so it does not depend on the batch or the horizon.
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(jax.random.PRNGKey(seed), jnp.arange(batch))
+    starts = jax.jit(jax.vmap(env.reset))(keys).data
+    lo, hi = env.action_bounds
+    draw = lambda i: np.random.default_rng((seed, i)).uniform(lo, hi, (steps, env.action_size))
+    ctrl = np.stack([draw(i) for i in range(batch)]).astype(np.float32)
+    return {
+        "name": name, "asset": ASSETS / env.asset, "mj": mj, "frame_skip": env.frame_skip,
+        "dt": dt, "steps": steps, "qpos": np.asarray(starts.qpos), "qvel": np.asarray(starts.qvel),
+        "ctrl": ctrl,
+        "shipped": {"integrator": Integrator(shipped.model.integrator).name.lower(),
+                    "substeps": round(dt / float(shipped.model.timestep)),
+                    "solver_iterations": shipped.model.solver_iterations},
+    }  # fmt: skip
+
+
+def substep_grid(frame_skip: int, quick: bool) -> list[int]:
+    """Substeps per control step: 1, 2, 4, the env's frame_skip and twice it (quick: 1 and it)."""
+    return sorted({1, frame_skip} if quick else {1, 2, 4, frame_skip, 2 * frame_skip})
+
+
+# ---------------------------------------------------------------- MuJoCo C
+
+
+def mujoco_model(task: dict, substeps: int) -> mujoco.MjModel:
+    """The asset as MuJoCo C runs it (its integrator and solver) at timestep dt / substeps."""
+    mj = mujoco.MjModel.from_xml_path(str(task["asset"]))
+    mj.opt.timestep = task["dt"] / substeps
+    return mj
+
+
+def reference_model(task: dict, divisor: int) -> mujoco.MjModel:
+    """The converged reference: float64, timestep / divisor, Newton to tolerance 1e-12."""
+    mj = mujoco.MjModel.from_xml_path(str(task["asset"]))
+    mj.opt.timestep /= divisor
+    if task["name"] in CONTACT_FREE:
+        mj.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+    mj.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+    mj.opt.iterations, mj.opt.tolerance = 100, 1e-12
+    mj.opt.ls_iterations, mj.opt.ls_tolerance = 100, 1e-10
+    return mj
+
+
+def mujoco_inputs(mj: mujoco.MjModel, task: dict, substeps: int, batch: int) -> tuple[np.ndarray, np.ndarray]:
+    """``mujoco.rollout``'s initial states (batch, nstate) and held controls (batch, nstep, nu)."""
+    md = mujoco.MjData(mj)
+    init = np.zeros((batch, mujoco.mj_stateSize(mj, STATE)))
+    for i in range(batch):
+        mujoco.mj_resetData(mj, md)
+        md.qpos[:], md.qvel[:] = task["qpos"][i], task["qvel"][i]
+        mujoco.mj_getState(mj, md, init[i], STATE)
+    return init, np.repeat(task["ctrl"][:batch].astype(np.float64), substeps, axis=1)
+
+
+def mujoco_rollout(mj: mujoco.MjModel, init: np.ndarray, ctrl: np.ndarray) -> np.ndarray:
+    """States after every physics step (batch, nstep, nstate), on 2 threads."""
+    datas = [mujoco.MjData(mj) for _ in range(2)]
+    return mujoco.rollout.rollout(mj, datas, init, ctrl, persistent_pool=True)[0]
+
+
+def qpos_per_control_step(
+    mj: mujoco.MjModel, state: np.ndarray, substeps: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """qpos after every control step (batch, steps, nq) and which sequences blew up.
+
+    MuJoCo resets a simulation whose state goes bad (with a warning); the reset shows as the
+    recorded time falling back, so it counts as a blow-up, as does a non-finite state.
+    """
+    expected = mj.opt.timestep * np.arange(1, state.shape[1] + 1)
+    time_ok = np.all(np.abs(state[:, :, 0] - expected) <= 1e-6 * expected, axis=1)
+    bad = ~np.all(np.isfinite(state), axis=(1, 2)) | ~time_ok
+    return state[:, substeps - 1 :: substeps, 1 : 1 + mj.nq], bad
+
+
+def reference_qpos(task: dict, divisor: int, sequences: int) -> tuple[np.ndarray, mujoco.MjModel]:
+    """The reference's qpos after every control step (sequences, steps, nq), and its model."""
+    mj = reference_model(task, divisor)
+    substeps = task["frame_skip"] * divisor
+    state = mujoco_rollout(mj, *mujoco_inputs(mj, task, substeps, sequences))
+    qpos, bad = qpos_per_control_step(mj, state, substeps)
+    if bad.any():
+        raise RuntimeError(f"{task['name']}: the reference blew up in {int(bad.sum())} sequences")
+    return qpos, mj
+
+
+def integrator_name(mj: mujoco.MjModel) -> str:
+    return mujoco.mjtIntegrator(mj.opt.integrator).name.removeprefix("mjINT_").lower()
+
+
+def solver_name(mj: mujoco.MjModel) -> str:
+    name = mujoco.mjtSolver(mj.opt.solver).name.removeprefix("mjSOL_")
+    return "Newton" if name == "NEWTON" else name
+
+
+# ---------------------------------------------------------------- fastrl
+
+
+def fastrl_program(task: dict, integrator: str, iterations: int) -> Callable:
+    """Jitted ``(qpos0, qvel0, ctrl, timestep, substeps) -> (qpos per control step, diverged)``,
+    batched over the leading axis; ``ctrl`` is (batch, steps, nu), the output qpos likewise."""
+    m = physics.model_from_mujoco(task["mj"], integrator=integrator, solver_iterations=iterations)
+
+    def run(qpos0, qvel0, ctrl, timestep, substeps):
+        mt = m.replace(timestep=timestep)
+
+        def control_step(d, u):
+            return jax.lax.fori_loop(0, substeps, lambda _, d: physics.step(mt, d, u), d)
+
+        def scan_step(d, u):
+            d = jax.vmap(control_step)(d, u)
+            return d, d.qpos
+
+        d0 = jax.vmap(lambda q, v: physics.make_data(m, qpos=q, qvel=v))(qpos0, qvel0)
+        d, qpos = jax.lax.scan(scan_step, d0, jnp.swapaxes(ctrl, 0, 1))
+        return jnp.swapaxes(qpos, 0, 1), d.diverged | ~jnp.all(jnp.isfinite(qpos), axis=(0, 2))
+
+    return jax.jit(run)
+
+
+def _args(task: dict, batch: int, steps: int, substeps: int) -> tuple:
+    timestep = jnp.asarray(task["dt"] / substeps, jnp.float32)
+    ctrl = task["ctrl"][:batch, :steps]
+    return task["qpos"][:batch], task["qvel"][:batch], ctrl, timestep, jnp.int32(substeps)
+
+
+def median_time(fn: Callable[[], object], runs: int = 3, min_s: float = 1.0, max_s: float = 3.0):
+    """Median wall time of ``fn()`` and its last output: at least ``runs`` calls and ``min_s``
+    seconds in all, but no new call once ``max_s`` seconds are spent."""
+    times, out = [], None
+    while not times or (sum(times) < max_s and (len(times) < runs or sum(times) < min_s)):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
+
+
+# ---------------------------------------------------------------- accuracy
+
+
+def tracked(mj: mujoco.MjModel, name: str, qpos: np.ndarray) -> np.ndarray:
+    """(..., k) what the error measures: body 1's world position, or qpos (fixed base)."""
+    if name in CONTACT_FREE:
+        return np.asarray(qpos, np.float64)
+    md = mujoco.MjData(mj)
+    flat = np.asarray(qpos, np.float64).reshape(-1, mj.nq)
+    out = np.empty((len(flat), 3))
+    for i, q in enumerate(flat):
+        md.qpos[:] = q
+        mujoco.mj_kinematics(mj, md)
+        out[i] = md.xpos[1]
+    return out.reshape(*qpos.shape[:-1], 3)
+
+
+def rms_error(points: np.ndarray, ref: np.ndarray) -> float:
+    """RMS over sequences and control steps of the distance between tracked points."""
+    return float(np.sqrt(np.mean(np.sum((points - ref) ** 2, axis=-1))))
+
+
+def pareto(rows: list[dict], floor: float) -> list[bool]:
+    """Whether each row is on the Pareto front of ``rows``: a finite error, and no other row at
+    least as fast and as accurate, and better in one of the two. Errors within ``PARETO_TOL``
+    (relative) plus the floor count as equal, since the reference resolves no finer: the same
+    setting in fastrl and MuJoCo C errs alike, and speed alone must decide between them."""
+    pts = [(r["control_steps_per_s"], r["error"]) for r in rows if r["error"] is not None]
+
+    def dominated(s: float, e: float) -> bool:
+        return any(s2 >= s and e2 <= e * (1 + PARETO_TOL) + floor and (s2 > s or e2 < e) for s2, e2 in pts)
+
+    return [r["error"] is not None and not dominated(r["control_steps_per_s"], r["error"]) for r in rows]
+
+
+# ---------------------------------------------------------------- one model
+
+
+def _row(task: dict, ref: np.ndarray, engine: str, setting: dict, sps: float, qpos, bad) -> dict:
+    bad = np.asarray(bad)
+    error = None if bad.any() else rms_error(tracked(task["mj"], task["name"], qpos), ref)
+    row = {"engine": engine, **setting, "timestep": task["dt"] / setting["substeps"],
+           "control_steps_per_s": sps, "error": error, "diverged": int(bad.sum())}  # fmt: skip
+    row["shipped"] = engine == "fastrl" and {k: row[k] for k in task["shipped"]} == task["shipped"]
+    print(f"  {label(row)}: {sps:,.0f} control steps/s, error {error}", flush=True)
+    return row
+
+
+def sweep_fastrl(task: dict, ref: np.ndarray, plan: dict) -> list[dict]:
+    """Every fastrl setting of ``plan``: one program per (integrator, iterations)."""
+    rows = []
+    for integrator in plan["integrators"]:
+        for iterations in plan["iterations"]:
+            program = fastrl_program(task, integrator, iterations)
+            t0 = time.perf_counter()
+            jax.block_until_ready(program(*_args(task, plan["batch"], plan["speed_steps"], 1)))
+            jax.block_until_ready(program(*_args(task, plan["sequences"], task["steps"], 1)))
+            compile_s = time.perf_counter() - t0
+            print(f"  fastrl {integrator}, {iterations} iters: compiled in {compile_s:.0f} s", flush=True)
+            for n in plan["substeps"]:
+                speed_args = _args(task, plan["batch"], plan["speed_steps"], n)
+                wall, _ = median_time(lambda p=program, a=speed_args: p(*a))
+                qpos, bad = program(*_args(task, plan["sequences"], task["steps"], n))
+                setting = {"integrator": integrator, "substeps": n, "solver_iterations": iterations}
+                sps = plan["batch"] * plan["speed_steps"] / wall
+                rows.append(_row(task, ref, "fastrl", setting, sps, np.asarray(qpos), bad))
+                rows[-1]["compile_s"] = compile_s
+    return rows
+
+
+def sweep_mujoco(task: dict, ref: np.ndarray, plan: dict) -> list[dict]:
+    """MuJoCo C at each timestep of the grid, timed over the whole horizon of the batch."""
+    rows = []
+    for n in plan["substeps"]:
+        mj = mujoco_model(task, n)
+        init, ctrl = mujoco_inputs(mj, task, n, plan["batch"])
+        mujoco_rollout(mj, init[:2], ctrl[:2, :n])  # warm-up: starts the thread pool
+        wall, state = median_time(lambda m=mj, i=init, c=ctrl: mujoco_rollout(m, i, c))
+        qpos, bad = qpos_per_control_step(mj, state[: plan["sequences"]], n)
+        setting = {"integrator": integrator_name(mj), "substeps": n,
+                   "solver_iterations": int(mj.opt.iterations), "solver": solver_name(mj)}  # fmt: skip
+        sps = plan["batch"] * task["steps"] / wall
+        rows.append(_row(task, ref, "MuJoCo C", setting, sps, qpos, bad))
+    return rows
+
+
+def sweep_model(task: dict, plan: dict) -> dict:
+    """Reference, floor, every setting's speed and error, and the Pareto front of one model."""
+    name, mj = task["name"], task["mj"]
+    t0 = time.perf_counter()
+    ref_q, ref_mj = reference_qpos(task, REF_DIVISOR, plan["sequences"])
+    fine_q, _ = reference_qpos(task, 2 * REF_DIVISOR, plan["sequences"])
+    ref = tracked(mj, name, ref_q)
+    floor = rms_error(tracked(mj, name, fine_q), ref)
+    print(f"{name}: reference in {time.perf_counter() - t0:.1f} s, floor {floor:.2e}", flush=True)
+    rows = sweep_fastrl(task, ref, plan) + sweep_mujoco(task, ref, plan)
+    fastrl_rows = [r for r in rows if r["engine"] == "fastrl"]
+    for r, on_front in zip(rows, pareto(rows, floor), strict=True):
+        r["pareto"] = on_front
+    for r, on_front in zip(fastrl_rows, pareto(fastrl_rows, floor), strict=True):
+        r["pareto_fastrl"] = on_front
+    return {
+        "dt": task["dt"], "frame_skip": task["frame_skip"], "horizon_s": task["steps"] * task["dt"],
+        "control_steps": task["steps"], "sequences": plan["sequences"], "batch": plan["batch"],
+        "floor": floor, "shipped": task["shipped"],
+        "metric": "qpos (m, rad)" if name in CONTACT_FREE else "root body position (m)",
+        "reference": {"integrator": integrator_name(ref_mj),
+                      "timestep": ref_mj.opt.timestep, "solver": "Newton", "iterations": 100,
+                      "tolerance": 1e-12},
+        "rows": rows,
+    }  # fmt: skip
+
+
+# ---------------------------------------------------------------- outputs
+
+
+def label(r: dict) -> str:
+    iters = r["solver_iterations"]
+    solver = f"{iters} iters" if r["engine"] == "fastrl" else f"{r['solver']} {iters} iters"
+    return f"{r['engine']} {r['integrator']} {r['timestep']:.4g}x{r['substeps']}, {solver}"
+
+
+def chart(results: dict, path: pathlib.Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = min(len(results), 3)
+    nrows = -(-len(results) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(5.2 * cols, 4.3 * nrows), squeeze=False)
+    styles = {("fastrl", "euler"): ("o", "tab:blue"), ("fastrl", "rk4"): ("s", "tab:orange"),
+              ("MuJoCo C", "euler"): ("^", "black"), ("MuJoCo C", "rk4"): ("v", "black")}  # fmt: skip
+    for ax, (name, res) in zip(axes.flat, results.items(), strict=False):
+        ok = [r for r in res["rows"] if r["error"] is not None]
+        for (engine, integrator), (marker, color) in styles.items():
+            pts = [(r["control_steps_per_s"], r["error"]) for r in ok
+                   if (r["engine"], r["integrator"]) == (engine, integrator)]  # fmt: skip
+            if pts:
+                ax.scatter(*zip(*pts, strict=True), marker=marker, color=color, s=22, alpha=0.8,
+                           label=f"{engine} {integrator}")  # fmt: skip
+        for key, style, text in (
+            ("pareto", "g-", "Pareto front"),
+            ("pareto_fastrl", "m--", "fastrl's front"),
+        ):
+            front = sorted((r["control_steps_per_s"], r["error"]) for r in ok if r.get(key))
+            if front:
+                ax.plot(*zip(*front, strict=True), style, lw=1, label=text)
+        for r in ok:
+            if r["shipped"]:
+                ax.scatter([r["control_steps_per_s"]], [r["error"]], s=240, facecolors="none",
+                           edgecolors="red", linewidths=1.5, label="fastrl shipped default")  # fmt: skip
+        ax.axhline(res["floor"], color="gray", ls=":", lw=1, label="floor (reference vs finer)")
+        diverged = len(res["rows"]) - len(ok)
+        title = f"{name}: dt {res['dt']:g} s, {res['horizon_s']:g} s" + (
+            f", {diverged} settings diverged" if diverged else ""
+        )
+        ax.set(xscale="log", yscale="log", xlabel=f"control steps / s (batch {res['batch']})",
+               ylabel=f"RMS error of {res['metric']}", title=title)  # fmt: skip
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6)
+    for ax in list(axes.flat)[len(results) :]:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(results: dict, machine: str) -> str:
+    lines = ["# Speed vs accuracy: fastrl's physics knobs and MuJoCo C", "",
+             f"Machine: {machine}. Command: `python experiments/speed_accuracy.py`.", "",
+             "Error: RMS over control steps and sequences of the distance to a converged MuJoCo C "
+             "reference (float64, asset timestep / 20, Newton with 100 iterations and tolerance "
+             "1e-12) of the root body's world position (of qpos for the fixed-base pendulum), from "
+             "the same start states under the same random controls. Floor: that reference against "
+             "one at timestep / 40. Speed: control steps/s at the batch shown (fastrl: the jitted, "
+             "vmapped control step in float32; MuJoCo C: `mujoco.rollout` on 2 threads). Pareto: "
+             "no other setting is at least as fast and as accurate (errors within "
+             f"{PARETO_TOL:.0%} plus the floor count as equal), among all settings (front) or "
+             "fastrl's alone (fastrl front).", ""]  # fmt: skip
+    for name, res in results.items():
+        ship = next((r for r in res["rows"] if r["shipped"]), {})
+        where = ", ".join(
+            f"**{'on' if ship.get(key) else 'not on'} {text}**"
+            for key, text in (("pareto", "the Pareto front"), ("pareto_fastrl", "fastrl's front"))
+        )
+        s, ref = res["shipped"], res["reference"]
+        lines += [f"## {name}", "",
+                  f"Control step {res['dt']:g} s, horizon {res['horizon_s']:g} s ({res['control_steps']} "
+                  f"control steps), {res['sequences']} sequences. Metric: {res['metric']}. Reference: "
+                  f"MuJoCo C {ref['integrator']} at {ref['timestep']:.3g} s. Floor: {res['floor']:.2e}. "
+                  f"Shipped: fastrl {s['integrator']} x{s['substeps']}, {s['solver_iterations']} "
+                  f"iterations, {where}.", "",
+                  "| setting | control steps/s | error | front | fastrl front | shipped |",
+                  "| --- | ---: | ---: | :---: | :---: | :---: |"]  # fmt: skip
+        for r in sorted(res["rows"], key=lambda r: -r["control_steps_per_s"]):
+            err = f"{r['error']:.2e}" if r["error"] is not None else f"diverged ({r['diverged']})"
+            marks = ["yes" if r.get(k) else "" for k in ("pareto", "pareto_fastrl")]
+            marks.append("**shipped**" if r["shipped"] else "")
+            lines.append(f"| {label(r)} | {r['control_steps_per_s']:,.0f} | {err} | {' | '.join(marks)} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="the pendulum, 2 timesteps, for CI")
+    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--models", nargs="+", choices=MODELS, default=None)
+    args = parser.parse_args()
+    models = args.models or (["inverted_double_pendulum"] if args.quick else list(MODELS))
+    results = {}
+    for name in models:
+        # Quick: the shipped integrator and iterations only, and one program shape for speed and
+        # accuracy (batch = sequences, timed over the whole short horizon).
+        horizon = 0.2 if args.quick else HORIZON_S[name]
+        task = make_task(name, 64 if args.quick else BATCH, horizon)
+        one_iteration_count = args.quick or name in CONTACT_FREE
+        plan = {
+            "batch": 64 if args.quick else BATCH,
+            "sequences": 64 if args.quick else SEQUENCES,
+            "speed_steps": task["steps"] if args.quick else 1,
+            "substeps": substep_grid(task["frame_skip"], args.quick),
+            "integrators": [task["shipped"]["integrator"]] if args.quick else ["euler", "rk4"],
+            "iterations": [task["shipped"]["solver_iterations"]] if one_iteration_count else ITERATIONS,
+        }
+        results[name] = sweep_model(task, plan)
+
+    cpu = platform.processor() or platform.machine()
+    machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}, mujoco {mujoco.__version__}"
+    args.out.mkdir(parents=True, exist_ok=True)
+    stem = "speed_accuracy_quick" if args.quick else "speed_accuracy"
+    (args.out / f"{stem}.json").write_text(json.dumps({"machine": machine, "models": results}, indent=1))
+    text = markdown(results, machine)
+    (args.out / f"{stem}.md").write_text(text)
+    chart(results, args.out / f"{stem}.png")
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
