@@ -64,3 +64,38 @@ def test_speed_accuracy_quick(tmp_path):
     assert all(0.5 < err["fastrl", n] / err["MuJoCo C", n] < 2 for n in (1, 5))
     assert (tmp_path / "speed_accuracy_quick.png").stat().st_size > 0
     assert (tmp_path / "speed_accuracy_quick.md").read_text().startswith("# Speed vs accuracy")
+
+
+def test_conservation_quick(tmp_path):
+    result = _run_quick("conservation.py", tmp_path, "conservation_quick.json")
+    dts = result["protocol"]["timesteps"]
+    assert len(dts) == 2
+    # The shared float64 measurement agrees with fastrl's own momentum and energy at the kick.
+    assert result["validation"]["max_relative_difference"] < 1e-12
+    rows = {(r["label"], r["timestep"]): r for r in result["rows"]}
+    keys = ("momentum_drift", "energy_drift")
+    assert all(r[k] is not None and 0 < r[k] < 1 for r in rows.values() for k in keys)
+    assert all(r["joint_travel"] > 0.2 for r in rows.values())  # the torques really moved the legs
+    fine, coarse = sorted(dts)
+    for engine in ("fastrl", "MuJoCo C"):
+        tag = " float64" if engine == "fastrl" else ""
+        euler = {dt: rows[f"{engine} euler{tag}", dt] for dt in dts}
+        rk4 = {dt: rows[f"{engine} rk4{tag}", dt] for dt in dts}
+        for k in keys:
+            # RK4 conserves far better than Euler at the same timestep, and the drifts fall with the
+            # timestep at each integrator's order: about 2x (Euler, first) and 16x (RK4, fourth).
+            assert all(rk4[dt][k] < euler[dt][k] / 100 for dt in dts), (engine, k)
+            assert 1.5 < euler[coarse][k] / euler[fine][k] < 3, (engine, k)
+            assert rk4[coarse][k] / rk4[fine][k] > 8, (engine, k)
+    # fastrl in float64 drifts as MuJoCo C does, integrator by integrator and timestep by timestep.
+    for integrator in ("euler", "rk4"):
+        for dt in dts:
+            ours, theirs = rows[f"fastrl {integrator} float64", dt], rows[f"MuJoCo C {integrator}", dt]
+            assert all(0.99 < ours[k] / theirs[k] < 1.01 for k in keys), (integrator, dt)
+    # float32 rounding floors RK4's drift: at the finer timestep it stays above float64's.
+    assert (
+        rows["fastrl rk4 float32", fine]["momentum_drift"]
+        > 2 * rows["fastrl rk4 float64", fine]["momentum_drift"]
+    )
+    assert (tmp_path / "conservation_quick.png").stat().st_size > 0
+    assert (tmp_path / "conservation_quick.md").read_text().startswith("# Conservation")
