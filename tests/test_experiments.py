@@ -99,3 +99,19 @@ def test_conservation_quick(tmp_path):
     )
     assert (tmp_path / "conservation_quick.png").stat().st_size > 0
     assert (tmp_path / "conservation_quick.md").read_text().startswith("# Conservation")
+
+
+def test_stability_map_quick(tmp_path):
+    result = _run_quick("stability_map.py", tmp_path, "stability_map_quick.json")
+    (res,) = result["envs"].values()
+    rows = res["rows"]
+    assert len(rows) == 4 and sum(r["shipped"] for r in rows) == 1
+    assert all(0.0 <= r["guard"] <= r["diverged"] <= 1.0 for r in rows)
+    # Stable at the asset's timestep; with a timestep of four control steps every episode blows up
+    # and the guard flags it.
+    assert all(r["diverged"] == 0 for r in rows if not r["beyond_dt"])
+    assert all(r["guard"] == 1 for r in rows if r["beyond_dt"])
+    (limit,) = res["limits"].values()
+    assert limit["guard"] == limit["diverged"] == max(r["timestep"] for r in rows)
+    assert (tmp_path / "stability_map_quick.png").stat().st_size > 0
+    assert (tmp_path / "stability_map_quick.md").read_text().startswith("# Stability map")
