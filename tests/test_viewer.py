@@ -139,7 +139,7 @@ def test_goal_markers_are_embedded_and_drawn(tmp_path):
     if chromium.find_chromium() is None:
         pytest.skip("no chromium on PATH (apt-get install chromium)")
     dom, _ = chromium.dump_dom(
-        viewer.write_html(arm, qpos, tmp_path / "arm.html", markers=marks), budget_ms=1500
+        viewer.write_html(arm, qpos, tmp_path / "arm.html", markers=marks), budget_ms=4000
     )
     assert re.search(r'<pre id="errors"[^>]*>(.*?)</pre>', dom, re.S)[1] == ""
     assert int(re.search(r'<span id="frame">(\d+)</span>', dom)[1]) > 0

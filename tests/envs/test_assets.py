@@ -120,7 +120,7 @@ def models(request):
 
 
 # fastrl's own scenes have no Gymnasium model; tests/envs/test_scenes.py checks them against MuJoCo
-SCENE_ASSETS = {"arm"}
+SCENE_ASSETS = {"arm", "arm_push", "hand"}
 
 
 def test_every_asset_is_covered():
