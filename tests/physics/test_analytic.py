@@ -115,6 +115,7 @@ def test_momentum_conserved_to_float32_precision_with_rk4():
     assert _momentum_drift("rk4", dt=0.001) < 2e-5
 
 
+@pytest.mark.slow  # in the default suite, tests/test_experiments.py::test_conservation_quick checks this
 def test_euler_momentum_drift_is_discretisation_error(x64):
     """Semi-implicit Euler conserves momentum only to O(h): the drift must shrink with dt."""
     coarse, fine = _momentum_drift("euler", 0.01), _momentum_drift("euler", 0.001)

@@ -17,7 +17,8 @@ def _final_angle(m, ctrls):
     return d.qpos[0] + 0.1 * d.qvel[0]
 
 
-@pytest.mark.parametrize("integrator", ["euler", "rk4"])
+# RK4's (about 50 s) runs with the slow tests; both integrators share every other stage.
+@pytest.mark.parametrize("integrator", ["euler", pytest.param("rk4", marks=pytest.mark.slow)])
 def test_gradient_matches_finite_differences(integrator, x64):
     m = physics.load_mjcf(asset("pendulum"), integrator=integrator)
     ctrls = 0.5 * jnp.sin(jnp.arange(100.0) / 7.0)[:, None]

@@ -48,7 +48,8 @@ def _two_updates(learner):
     return jax.jit(lambda s: jax.lax.scan(lambda s, _: learner.update(s), s, None, length=2))
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
+# SAC's batch (about a minute) runs with the slow tests; PPO's covers the vmapped machinery here.
+@pytest.mark.parametrize("algo", ["ppo", pytest.param("sac", marks=pytest.mark.slow)])
 def test_each_agent_of_a_batch_matches_its_single_run(algo):
     cfg = typed([*QUICK, f"algo={algo}", "train.num_seeds=2", "train.vmap_sweep={learning_rate:[1e-3,3e-4]}"])
     env = cfg.env.make()
