@@ -67,6 +67,7 @@ import jax.numpy as jnp
 import mujoco
 import mujoco.rollout
 import numpy as np
+from shipped import shipped_overrides  # experiments/shipped.py
 
 from fastrl import envs, physics
 from fastrl.envs.base import ASSETS
@@ -93,20 +94,6 @@ STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # time, qpos, qvel, ...: qpos start
 
 
 # ---------------------------------------------------------------- the fixed problem of one model
-
-
-def shipped_overrides(name: str) -> dict:
-    """Physics keys set in ``conf/env/<name>.yaml``, then ``conf/experiment/<name>_ppo.yaml``."""
-    from omegaconf import OmegaConf
-
-    keys = ("integrator", "solver_iterations", "timestep", "frame_skip")
-    out = {}
-    for path in (ROOT / "conf" / "env" / f"{name}.yaml", ROOT / "conf" / "experiment" / f"{name}_ppo.yaml"):
-        if path.exists():
-            conf = OmegaConf.to_container(OmegaConf.load(path))
-            conf = (conf.get("env") or {}) if path.parent.name == "experiment" else conf
-            out.update({k: conf[k] for k in keys if conf.get(k) is not None})
-    return out
 
 
 def make_task(name: str, batch: int, horizon_s: float, seed: int = 0) -> dict:

@@ -79,6 +79,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from shipped import shipped_overrides  # experiments/shipped.py
 
 from fastrl import envs
 from fastrl.envs.base import ASSETS
@@ -100,20 +101,6 @@ SEED = 0
 
 
 # ---------------------------------------------------------------- the problem of one env
-
-
-def shipped_overrides(name: str) -> dict:
-    """Physics keys set in ``conf/env/<name>.yaml``, then ``conf/experiment/<name>_ppo.yaml``."""
-    from omegaconf import OmegaConf
-
-    keys = ("integrator", "solver_iterations", "timestep", "frame_skip")
-    out = {}
-    for path in (ROOT / "conf" / "env" / f"{name}.yaml", ROOT / "conf" / "experiment" / f"{name}_ppo.yaml"):
-        if path.exists():
-            conf = OmegaConf.to_container(OmegaConf.load(path))
-            conf = (conf.get("env") or {}) if path.parent.name == "experiment" else conf
-            out.update({k: conf[k] for k in keys if conf.get(k) is not None})
-    return out
 
 
 def columns(dt: float, frame_skip: int, quick: bool = False) -> list[dict]:

@@ -1,0 +1,29 @@
+"""The physics settings ``python -m fastrl.train env=<name>`` trains with, for experiments.
+
+Shared by the experiment scripts (``python experiments/<script>.py`` puts this folder on the
+import path) so that "the shipped setting" means one thing everywhere.
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PHYSICS_KEYS = ("integrator", "solver_iterations", "timestep", "frame_skip")
+
+
+def shipped_overrides(name: str, algo: str = "ppo") -> dict:
+    """Physics keys set in ``conf/env/<name>.yaml``, then ``conf/experiment/<name>_<algo>.yaml``."""
+    from omegaconf import OmegaConf
+
+    out = {}
+    env_file, experiment_file = (
+        ROOT / "conf" / "env" / f"{name}.yaml",
+        ROOT / "conf" / "experiment" / f"{name}_{algo}.yaml",
+    )
+    for path in (env_file, experiment_file):
+        if path.exists():
+            conf = OmegaConf.to_container(OmegaConf.load(path))
+            conf = (conf.get("env") or {}) if path.parent.name == "experiment" else conf
+            out.update({k: conf[k] for k in PHYSICS_KEYS if conf.get(k) is not None})
+    return out
