@@ -201,8 +201,9 @@ class HandReorient(Env):
     turned about the vertical to a heading uniform within ``target_yaw`` (+-180 degrees) of the
     start, with its faces level (the cube's faces are distinct: a mark on one of them shows the
     heading). With ``target="faces"`` the target also has a random face up (one of the cube's
-    24 rotations, then the turn): the fingers must roll the cube over, a far harder task. The cube is dropped (``terminated``) when its centre falls 1.5 cm below its resting
-    height or leaves the palm's square. An episode lasts 150 steps of 0.04 s; success means the
+    24 rotations, then the turn): the fingers must roll the cube over, a far harder task. The
+    cube is dropped (``terminated``) when its centre falls 1.5 cm below its resting height or
+    leaves the palm's square. An episode lasts 150 steps of 0.04 s; success means the
     orientation error is below ``success_tolerance`` (0.4 rad, as in OpenAI's in-hand cube
     work) at the episode's last step.
 

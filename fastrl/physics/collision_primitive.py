@@ -446,12 +446,16 @@ def capsule_box(c_pos, c_mat, c_size, b_pos, b_mat, b_size):
     t = jax.lax.stop_gradient(_section_search(descending, zero, zero + 1.0))
     world = lambda p: b_pos + b_mat @ p  # noqa: E731
     centres = jnp.stack([world(a), world(b), world(a + t * d)])
-    dist, pos, normal, tangent = jax.vmap(
-        lambda s: sphere_box(s, c_mat, c_size, b_pos, b_mat, b_size)
-    )(centres)
+    dist, pos, normal, tangent = jax.vmap(lambda s: sphere_box(s, c_mat, c_size, b_pos, b_mat, b_size))(
+        centres
+    )
     dist, pos, normal, tangent = dist[:, 0], pos[:, 0], normal[:, 0], tangent[:, 0]
     tol = 1e-6 + 1e-4 * c_size[0]
-    repeats = ((jnp.abs(dist[2] - dist[0]) < tol) & (jnp.abs(dist[2] - dist[1]) < tol)) | (t < 1e-2) | (t > 1 - 1e-2)
+    repeats = (
+        ((jnp.abs(dist[2] - dist[0]) < tol) & (jnp.abs(dist[2] - dist[1]) < tol))
+        | (t < 1e-2)
+        | (t > 1 - 1e-2)
+    )
     dist = dist.at[2].set(jnp.where(repeats, _FAR, dist[2]))
     return dist, pos, normal, tangent
 

@@ -99,10 +99,20 @@ def test_ant_goal_targets_body_frame_and_new_target_on_reach():
 
     # A target within reach is collected, counted and replaced by one 2-4 m from the torso.
     s = s.replace(task={"target": s.data.xpos[1, :2] + jnp.array([0.1, 0.0]), "reached": jnp.zeros(())})
-    nxt = jax.jit(env.step)(s, jnp.zeros(env.action_size))
+    step = jax.jit(env.step)
+    nxt = step(s, jnp.zeros(env.action_size))
     assert float(nxt.metrics["success"]) == 1.0 and float(nxt.task["reached"]) == 1.0
     assert float(nxt.metrics["reward_reach"]) == pytest.approx(10.0)
     assert 2.0 - 0.5 <= float(jnp.linalg.norm(nxt.task["target"] - nxt.data.xpos[1, :2])) <= 4.0 + 0.5
+
+    # Deterministic, and an unhealthy Ant (torso above the healthy range) auto-resets to a fresh
+    # episode with a fresh target around its new start.
+    np.testing.assert_array_equal(step(s, jnp.zeros(env.action_size)).data.qpos, nxt.data.qpos)
+    flying = s.replace(data=s.data.replace(qpos=s.data.qpos.at[2].set(1.5)))
+    new = step(flying, jnp.zeros(env.action_size))
+    assert bool(new.terminated) and int(new.episode_length) == 1
+    assert float(new.data.qpos[2]) < 1.0  # a fresh start pose, not the flying one
+    assert not np.allclose(np.asarray(new.task["target"]), np.asarray(s.task["target"]))
 
 
 # ------------------------------------------------------------------ arm_push
@@ -227,12 +237,12 @@ def test_hand_cube_rests_and_follows_mujoco_under_random_finger_targets(hand):
         md.qpos[15:19] = [np.cos(0.3 * seq), 0, 0, np.sin(0.3 * seq)]
         state = env.reset_to(jnp.asarray(md.qpos.copy()), jnp.zeros(mj.nv))
         hold = md.qpos[:12].astype(np.float32)
-        for t in range(30):  # the cube settles on the palm, fingers held
+        for _ in range(30):  # the cube settles on the palm, fingers held
             md.ctrl[:] = hold
             mujoco.mj_step(mj, md, nstep=env.frame_skip)
             state = step(state, jnp.asarray(hold))
         assert abs(float(state.data.qpos[14]) - md.qpos[14]) < 1e-3  # rest height within 1 mm
-        for t in range(20):  # fingers driven to random targets: they strike and turn the cube
+        for _ in range(20):  # fingers driven to random targets: they strike and turn the cube
             action = rng.uniform(low, high).astype(np.float32)
             md.ctrl[:] = action
             mujoco.mj_step(mj, md, nstep=env.frame_skip)
@@ -254,7 +264,9 @@ def test_hand_reorient_faces_targets_put_every_face_up():
     from fastrl.physics.math import quat_conj, quat_rotate
 
     # the cube-frame axis that points up in the target: each of the six faces, about equally often
-    up = np.asarray(jax.vmap(lambda q: quat_rotate(quat_conj(q), jnp.array([0.0, 0.0, 1.0])))(s.task["target"]))
+    up = np.asarray(
+        jax.vmap(lambda q: quat_rotate(quat_conj(q), jnp.array([0.0, 0.0, 1.0])))(s.task["target"])
+    )
     faces = np.argmax(np.abs(up), axis=1) * 2 + (up[np.arange(600), np.argmax(np.abs(up), axis=1)] < 0)
     counts = np.bincount(faces, minlength=6)
     assert counts.min() > 600 / 6 * 0.6

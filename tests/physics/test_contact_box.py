@@ -12,15 +12,16 @@ from fastrl import physics
 from tests.physics.test_contact import _run_both, _xml
 
 TABLE = '<geom name="table" type="box" size="0.3 0.3 0.05"/>'
+BOX = '<body pos="{}" euler="{}"><freejoint/><geom type="{}" size="{}"/></body>'
 DROPS = {
     # one face flat on the table (MuJoCo clips it to the same four corners)
-    "cube_on_box": '<body pos="0 0.05 0.3" euler="0 0 20"><freejoint/><geom type="box" size="0.05 0.05 0.05"/></body>',
+    "cube_on_box": BOX.format("0 0.05 0.3", "0 0 20", "box", "0.05 0.05 0.05"),
     # lands on a corner, tips onto an edge, then a face
-    "box_corner_first": '<body pos="0 0 0.3" euler="30 40 10"><freejoint/><geom type="box" size="0.05 0.04 0.03"/></body>',
+    "box_corner_first": BOX.format("0 0 0.3", "30 40 10", "box", "0.05 0.04 0.03"),
     # a capsule on its side: the two end contacts
-    "capsule_on_box": '<body pos="0.05 0 0.3" euler="80 0 30"><freejoint/><geom type="capsule" size="0.03 0.1"/></body>',
+    "capsule_on_box": BOX.format("0.05 0 0.3", "80 0 30", "capsule", "0.03 0.1"),
     # a capsule landing across the table's edge: an end and the edge carry it
-    "capsule_over_edge": '<body pos="0.24 0 0.3" euler="0 85 0"><freejoint/><geom type="capsule" size="0.03 0.1"/></body>',
+    "capsule_over_edge": BOX.format("0.24 0 0.3", "0 85 0", "capsule", "0.03 0.1"),
 }
 
 
@@ -69,7 +70,14 @@ def test_box_box_is_symmetric_in_its_geoms(x64):
     mujoco.mju_euler2Quat(quat, np.deg2rad([20.0, 30.0, 40.0]), "xyz")
     mujoco.mju_quat2Mat(mat, quat)
     tilt = jnp.asarray(mat.reshape(3, 3))
-    args = (jnp.zeros(3), eye, jnp.array([0.3, 0.3, 0.05]), jnp.array([0.0, 0.0, 0.1]), tilt, jnp.array([0.05] * 3))
+    args = (
+        jnp.zeros(3),
+        eye,
+        jnp.array([0.3, 0.3, 0.05]),
+        jnp.array([0.0, 0.0, 0.1]),
+        tilt,
+        jnp.array([0.05] * 3),
+    )
     d12, p12, n12, _ = prim.box_box(*args)
     d21, p21, n21, _ = prim.box_box(*args[3:], *args[:3])
     np.testing.assert_allclose(np.sort(d12), np.sort(d21), atol=1e-12)
