@@ -18,6 +18,11 @@ from fastrl.envs.locomotion import Ant
 from fastrl.physics.math import quat_conj, quat_mul, quat_rotate
 
 
+def _on_table(xy: jax.Array) -> jax.Array:
+    """(1, 3) a marker at the horizontal goal ``xy``, on the ground (z = 0)."""
+    return jnp.concatenate([xy, jnp.zeros(1, xy.dtype)])[None]
+
+
 class ArmReach(Env):
     """A 6-joint UR5e-like arm moves its tool flange to a random target (``env=arm_reach``).
 
@@ -132,7 +137,7 @@ class ArmPush(ArmReach):
         return {"target": goal}
 
     def markers(self, task):
-        return jnp.concatenate([task["target"], jnp.zeros(1, task["target"].dtype)])[None]
+        return _on_table(task["target"])
 
     def _tool(self, data):
         return data.site_xpos[1]
@@ -314,7 +319,7 @@ class AntGoal(Ant):
         return torso_xy + radius * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
 
     def markers(self, task):
-        return jnp.concatenate([task["target"], jnp.zeros(1, task["target"].dtype)])[None]
+        return _on_table(task["target"])
 
     def _sample_task(self, key, model, data):
         target = self._new_target(key, data.xpos[self.main_body, :2])

@@ -409,6 +409,9 @@ def capsule_cylinder(c_pos, c_mat, c_size, y_pos, y_mat, y_size):
     return _one(dist, y_pos + y_mat @ pos, y_mat @ normal)
 
 
+_FAR = 1e6  # a candidate's dist when it is dropped: beyond any margin, so masked as inactive
+
+
 def _box_sdf_slope(local, d, half):
     """Slope along ``d`` of a box's signed distance at the box-frame point ``local``."""
     q = jnp.abs(local) - half
@@ -458,9 +461,6 @@ def capsule_box(c_pos, c_mat, c_size, b_pos, b_mat, b_size):
     )
     dist = dist.at[2].set(jnp.where(repeats, _FAR, dist[2]))
     return dist, pos, normal, tangent
-
-
-_FAR = 1e6  # a candidate's dist when it is dropped: beyond any margin, so masked as inactive
 
 
 def box_box(pos1, mat1, size1, pos2, mat2, size2):
