@@ -138,8 +138,9 @@ def test_goal_markers_are_embedded_and_drawn(tmp_path):
         scene.build_scene(arm, qpos, markers=marks[:3])
     if chromium.find_chromium() is None:
         pytest.skip("no chromium on PATH (apt-get install chromium)")
+    # Opened paused at frame 3: a playing 6-frame loop shows frame 0 one sixth of the time.
     dom, _ = chromium.dump_dom(
-        viewer.write_html(arm, qpos, tmp_path / "arm.html", markers=marks), budget_ms=4000
+        viewer.write_html(arm, qpos, tmp_path / "arm.html", markers=marks), budget_ms=2000, frame=3
     )
     assert re.search(r'<pre id="errors"[^>]*>(.*?)</pre>', dom, re.S)[1] == ""
-    assert int(re.search(r'<span id="frame">(\d+)</span>', dom)[1]) > 0
+    assert int(re.search(r'<span id="frame">(\d+)</span>', dom)[1]) == 3, "the marked frame was not drawn"

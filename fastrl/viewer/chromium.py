@@ -41,10 +41,12 @@ def _run(page: str | Path, args: list[str], budget_ms: int, size: tuple[int, int
         return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
 
 
-def dump_dom(page: str | Path, budget_ms: int = 3000, size: tuple[int, int] = (800, 600)):
-    """(DOM, console lines): the page's HTML after ``budget_ms`` of virtual time, and the
-    browser's console messages (``INFO:CONSOLE`` lines of its log)."""
-    r = _run(page, ["--dump-dom"], budget_ms, size)
+def dump_dom(
+    page: str | Path, budget_ms: int = 3000, size: tuple[int, int] = (800, 600), frame: int | None = None
+):
+    """(DOM, console lines): the page's HTML after ``budget_ms`` of virtual time (paused at
+    ``frame`` if given), and the browser's console messages (``INFO:CONSOLE`` lines of its log)."""
+    r = _run(page, ["--dump-dom"], budget_ms, size, "" if frame is None else f"#frame={frame}")
     console = [line for line in r.stderr.splitlines() if ":CONSOLE" in line]
     return r.stdout, console
 
