@@ -203,9 +203,11 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
     jit_init = jax.jit(learner.init) if shardings is None else jax.jit(learner.init, out_shardings=shardings)
     state = jit_init(init_key)
     chunk, wall = 0, 0.0
+    watch = CollapseWatch(n_agents)
     if resume:
         state, meta = ckpt.restore(state, config)
         chunk, wall = int(meta["chunk"]), float(meta["wall_s"])
+        watch = CollapseWatch(n_agents, history=meta.get("eval_history"))
         print(f"[fastrl] resumed {run_dir} at chunk {chunk} ({int(meta['env_steps']):,d} env steps)")
     elif ckpt.latest_step() is not None:
         raise CheckpointError(
@@ -250,7 +252,7 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
         outs = [_Outputs(run_dir, cfg, chunk, _env_steps(state))]
     diverged = [False] * n_agents
     status, row, start_chunk = "done", {}, chunk
-    save = lambda: ckpt.save(chunk, state, _meta(config, chunk, state, wall))  # noqa: E731
+    save = lambda: ckpt.save(chunk, state, _meta(config, chunk, state, wall, watch))  # noqa: E731
     try:
         with _StopFlag() as stop:
             while chunk < n_chunks:
@@ -276,7 +278,8 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                 dt = time.perf_counter() - t
                 wall += dt
                 every = cfg.train.eval_every
-                if chunk == n_chunks or (every and chunk % every == 0):
+                # Chunk 1 always evaluates: metrics.csv takes its columns from the first row.
+                if chunk in (1, n_chunks) or (every and chunk % every == 0):
                     keys = [jax.random.fold_in(jax.random.PRNGKey(s.seed + 1), chunk) for s in specs]
                     key = keys[0] if n_agents == 1 else jnp.stack(keys)
                     ret, length, final = scale.to_host(evaluate(learner.policy_params(state), key))
@@ -287,6 +290,13 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                                   "eval/episode_return_std": float(ret[i].std()),
                                   "eval/episode_length": float(length[i].mean())})  # fmt: skip
                         r.update({f"eval/{k}": float(v[i].mean()) for k, v in final.items()})
+                        was = watch.collapsed[i]
+                        if watch.update(i, r["eval/episode_return"]) and not was:
+                            who = f"agent {specs[i].tag} " if n_agents > 1 else ""
+                            print(f"[fastrl] {who}training collapsed in chunk {chunk}: eval return "
+                                  f"{r['eval/episode_return']:.4g}, best {watch.best[i]:.4g}, first "
+                                  f"{watch.first[i]:.4g}", file=sys.stderr)  # fmt: skip
+                        r["train/collapsed"] = float(watch.collapsed[i])
                 if write_viewer and (chunk == n_chunks or chunk % cfg.logger.viewer_every == 0):
                     params = scale.to_host(learner.policy_params(state))  # every process gathers
                     if jax.process_index() == 0:
@@ -319,10 +329,45 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
         ckpt.close()
     summary = {"status": status, "chunks": chunk, "env_steps": _env_steps(state), "compile_s": compile_s,
                "wall_s": wall, "last": row, "run_dir": str(run_dir)}  # fmt: skip
+    summary["collapsed"] = watch.collapsed if n_agents > 1 else watch.collapsed[0]
+    summary["best_eval_return"] = watch.best if n_agents > 1 else watch.best[0]
     if n_agents > 1:
         summary["agents"] = [s.tag for s in specs]
         summary["diverged_agents"] = [s.tag for s, d in zip(specs, diverged, strict=True) if d]
+        summary["collapsed_agents"] = [s.tag for s, c in zip(specs, watch.collapsed, strict=True) if c]
     return summary
+
+
+class CollapseWatch:
+    """Flags agents whose evaluation return collapsed: after improving on the first evaluation by
+    a real margin (``min_gain`` of the first return's size, plus 1), the latest evaluation fell
+    back more than ``fraction`` of the way from the best to the first. A collapsed run keeps
+    training (it may recover); the flag is logged as ``train/collapsed`` and in the summary.
+    The history is part of the checkpoint's metadata, so a resumed run judges the same way."""
+
+    def __init__(self, n_agents: int, fraction: float = 0.5, min_gain: float = 0.1, history=None):
+        self.fraction, self.min_gain = fraction, min_gain
+        h = history or {}
+        self.first = list(h.get("first", [None] * n_agents))
+        self.best = list(h.get("best", [None] * n_agents))
+        self.collapsed = list(h.get("collapsed", [False] * n_agents))
+        self.ever = list(h.get("ever", [False] * n_agents))
+
+    def update(self, i: int, ret: float) -> bool:
+        """Records agent ``i``'s evaluation return; True when it is collapsed now."""
+        if not math.isfinite(ret):
+            return self.collapsed[i]
+        if self.first[i] is None:
+            self.first[i] = self.best[i] = ret
+        self.best[i] = max(self.best[i], ret)
+        gain = self.best[i] - self.first[i]
+        real = gain > self.min_gain * abs(self.first[i]) + 1.0
+        self.collapsed[i] = bool(real and ret < self.best[i] - self.fraction * gain)
+        self.ever[i] = self.ever[i] or self.collapsed[i]
+        return self.collapsed[i]
+
+    def history(self) -> dict:
+        return {"first": self.first, "best": self.best, "collapsed": self.collapsed, "ever": self.ever}
 
 
 def _env_steps(state, agent: int | None = None) -> int:
@@ -344,5 +389,6 @@ def _mean_row(rows: list[dict], n_agents: int) -> dict:
     return out
 
 
-def _meta(config: dict, chunk: int, state, wall: float) -> dict:
-    return {"config": config, "chunk": chunk, "env_steps": _env_steps(state), "wall_s": wall}
+def _meta(config: dict, chunk: int, state, wall: float, watch: CollapseWatch) -> dict:
+    return {"config": config, "chunk": chunk, "env_steps": _env_steps(state), "wall_s": wall,
+            "eval_history": watch.history()}  # fmt: skip

@@ -115,3 +115,17 @@ def test_stability_map_quick(tmp_path):
     assert limit["guard"] == limit["diverged"] == max(r["timestep"] for r in rows)
     assert (tmp_path / "stability_map_quick.png").stat().st_size > 0
     assert (tmp_path / "stability_map_quick.md").read_text().startswith("# Stability map")
+
+
+def test_learner_stability_quick(tmp_path):
+    result = _run_quick("learner_stability.py", tmp_path, "learner_stability_quick.json")
+    assert [c["algo"] for c in result["cells"]] == ["ppo", "sac"]
+    for cell in result["cells"]:
+        by_lr = {a["learning_rate"]: a for a in cell["agents"]}
+        # The absurd rate is caught by the runner as diverged; the sane one in the same program is not.
+        assert by_lr[1e4]["diverged"] and by_lr[1e4]["outcome"] == "diverged"
+        assert not by_lr[1e-3]["diverged"] and by_lr[1e-3]["outcome"] in ("learned", "stalled", "collapsed")
+        assert by_lr[1e-3]["final_return"] > 0
+    md = (tmp_path / "learner_stability_quick.md").read_text()
+    assert md.startswith("# Learner stability") and "| 256 | *" in md
+    assert (tmp_path / "learner_stability_quick.png").stat().st_size > 0

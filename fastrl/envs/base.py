@@ -228,9 +228,13 @@ class Env:
 
     @property
     def observation_size(self) -> int:
-        data = self._reset_data(jax.random.PRNGKey(0), self.model)
-        task = self._sample_task(jax.random.PRNGKey(0), self.model, data)
-        return int(jax.eval_shape(lambda: self._observe_task(self.model, data, task)).shape[0])
+        # Traced abstractly (shapes only): run eagerly, the reset would compile every primitive.
+        def observe():
+            data = self._reset_data(jax.random.PRNGKey(0), self.model)
+            task = self._sample_task(jax.random.PRNGKey(0), self.model, data)
+            return self._observe_task(self.model, data, task)
+
+        return int(jax.eval_shape(observe).shape[0])
 
     @property
     def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -327,11 +331,15 @@ class Env:
 
     def metric_names(self) -> list[str]:
         """Names of ``State.metrics`` (fixed per env, so batches have a static structure)."""
-        model, data = self.model, self._reset_data(jax.random.PRNGKey(0), self.model)
-        action = jnp.zeros(self.model.nu, data.qpos.dtype)
-        task = self._sample_task(jax.random.PRNGKey(0), model, data)
-        key = jax.random.PRNGKey(0)
-        terms, _, extra, _ = jax.eval_shape(lambda: self._reward_task(model, data, data, action, task, key))
+        model, key = self.model, jax.random.PRNGKey(0)
+
+        def reward():  # traced abstractly, as observation_size
+            data = self._reset_data(key, model)
+            action = jnp.zeros(model.nu, data.qpos.dtype)
+            task = self._sample_task(key, model, data)
+            return self._reward_task(model, data, data, action, task, key)
+
+        terms, _, extra, _ = jax.eval_shape(reward)
         return [f"reward_{k}" for k in terms] + list(extra) + ["diverged"]
 
     # ---------------------------------------------------------------- helpers

@@ -150,6 +150,30 @@ def test_corrupt_or_incompatible_checkpoint_gives_a_clear_error(tmp_path):
     assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["1"]
 
 
+def test_a_diverging_run_is_reported_and_never_saved(tmp_path, capsys):
+    # Rewards scaled past float32's range make the value loss infinite in the first chunk.
+    out = run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}", "algo.reward_scaling=1e38"]))
+    assert out["status"] == "diverged" and out["chunks"] == 0
+    assert "training diverged (non-finite loss) in chunk 1" in capsys.readouterr().err
+    assert not (tmp_path / "checkpoints").exists() or not any((tmp_path / "checkpoints").iterdir())
+
+
+def test_collapse_watch_flags_a_return_that_falls_back():
+    from fastrl.runner import CollapseWatch
+
+    w = CollapseWatch(2)
+    # Agent 0 learns (10 -> 100) then falls to 40: more than half the gain lost.
+    assert [w.update(0, r) for r in (10, 60, 100, 70, 40)] == [False, False, False, False, True]
+    assert w.update(0, 90) is False and w.ever[0]  # recovered; it did collapse once
+    # Agent 1 never gains more than noise (10% of |first| + 1), so no fall counts as a collapse.
+    assert not any(w.update(1, r) for r in (-100, -95, -105, -99))
+    # The history survives a checkpoint (JSON metadata) and judges the same way after a resume.
+    import json
+
+    again = CollapseWatch(2, history=json.loads(json.dumps(w.history())))
+    assert again.update(0, 40) is True and again.best[0] == 100
+
+
 def test_ppo_improves_inverted_pendulum_within_a_minute(tmp_path):
     out = run(
         compose_cfg(
