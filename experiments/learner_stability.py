@@ -18,7 +18,8 @@ sizes change shapes, so each is its own program. The runner itself classifies ev
   budget).
 
 Task: ``inverted_pendulum`` (return 1000 = balanced for the whole episode), cheap enough that a
-grid of 4 batch sizes x 7 learning rates x 2 seeds runs in minutes per learner on 2 cores.
+grid of 4 batch sizes x 9 learning rates (1e-4 to 1, half decades) x 2 seeds runs in minutes
+per learner on 2 cores.
 
 * PPO uses the shipped ``experiment/inverted_pendulum_ppo`` settings (64 envs x 16 steps per
   rollout, 4 epochs) over 150k env steps; "batch size" is the minibatch size (SB3's
@@ -50,7 +51,7 @@ from fastrl.train import CONF_DIR, run
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 TARGET = 0.9  # of the best return, 1000 on inverted_pendulum
 BEST_RETURN = 1000.0
-LRS = [1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 1e-1]
+LRS = [1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1, 1.0]
 
 SETUPS = {
     "ppo": {

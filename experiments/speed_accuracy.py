@@ -2,6 +2,7 @@
 
     python experiments/speed_accuracy.py                         # all five models, ~45 min on 2 cores
     python experiments/speed_accuracy.py --models ant hopper     # a subset
+    python experiments/speed_accuracy.py --models ant --merge    # add to the committed models
     python experiments/speed_accuracy.py --quick                 # tiny, for CI
 
 Models: the Ant, HalfCheetah, Hopper and Humanoid (contacts) and the InvertedDoublePendulum (no
@@ -448,9 +449,19 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="the pendulum, 2 timesteps, for CI")
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     parser.add_argument("--models", nargs="+", choices=MODELS, default=None)
+    parser.add_argument(
+        "--merge",
+        action="store_true",
+        help="keep the other models already in the output JSON (run the sweep in parts)",
+    )
     args = parser.parse_args()
     models = args.models or (["inverted_double_pendulum"] if args.quick else list(MODELS))
     results = {}
+    stem = "speed_accuracy_quick" if args.quick else "speed_accuracy"
+    previous = args.out / f"{stem}.json"
+    if args.merge and previous.exists():
+        results = {k: v for k, v in json.loads(previous.read_text())["models"].items() if k not in models}
+        print(f"keeping {', '.join(results) or 'no models'} from {previous}")
     for name in models:
         # Quick: the shipped integrator and iterations only, and one program shape for speed and
         # accuracy (batch = sequences, timed over the whole short horizon).
@@ -470,7 +481,7 @@ def main() -> None:
     cpu = platform.processor() or platform.machine()
     machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}, mujoco {mujoco.__version__}"
     args.out.mkdir(parents=True, exist_ok=True)
-    stem = "speed_accuracy_quick" if args.quick else "speed_accuracy"
+    results = {name: results[name] for name in MODELS if name in results}  # a fixed order
     (args.out / f"{stem}.json").write_text(json.dumps({"machine": machine, "models": results}, indent=1))
     text = markdown(results, machine)
     (args.out / f"{stem}.md").write_text(text)
