@@ -2,6 +2,7 @@
 
     python experiments/learner_stability.py                  # PPO and SAC on inverted_pendulum
     python experiments/learner_stability.py --algos ppo      # one learner
+    python experiments/learner_stability.py --algos ppo --merge  # redo one, keep the other's cells
     python experiments/learner_stability.py --quick          # tiny, for CI (~1 min)
 
 For each learner and each batch size, ONE training program holds every learning rate x seed as
@@ -18,13 +19,13 @@ sizes change shapes, so each is its own program. The runner itself classifies ev
   budget).
 
 Task: ``inverted_pendulum`` (return 1000 = balanced for the whole episode), cheap enough that a
-grid of 4 batch sizes x 9 learning rates (1e-4 to 1, half decades) x 2 seeds runs in minutes
+grid of 4-5 batch sizes x 9 learning rates (1e-4 to 1, half decades) x 2 seeds runs in minutes
 per learner on 2 cores.
 
 * PPO uses the shipped ``experiment/inverted_pendulum_ppo`` settings (64 envs x 16 steps per
   rollout, 4 epochs) over 150k env steps; "batch size" is the minibatch size (SB3's
-  ``batch_size``): the rollout of 1024 steps split into 32, 8, 2 or 1 minibatches of 32, 128, 512
-  or 1024.
+  ``batch_size``): the rollout of 1024 steps split into 32, 8, 4, 2 or 1 minibatches of 32, 128,
+  256 (shipped), 512 or 1024.
 * SAC: 16 envs, 4 gradient updates per 16 env steps, 1,000 random steps before learning,
   ``[64, 64]`` networks, 40k env steps; "batch size" is the replay sample per gradient update
   (32 to 1024).
@@ -58,7 +59,7 @@ SETUPS = {
         "overrides": ["env=inverted_pendulum", "algo=ppo", "train.total_env_steps=150000"],
         "batch_key": "algo.num_minibatches",
         # minibatch size -> number of minibatches of the 64 x 16 = 1024-step rollout
-        "batches": {32: 32, 128: 8, 512: 2, 1024: 1},
+        "batches": {32: 32, 128: 8, 256: 4, 512: 2, 1024: 1},
         "shipped": (1e-3, 256),
         "quick": {"batches": {256: 4}, "steps": 4096},
     },
@@ -261,11 +262,20 @@ def main() -> None:
     parser.add_argument("--algos", nargs="+", choices=sorted(SETUPS), default=sorted(SETUPS))
     parser.add_argument("--seeds", type=int, default=None, help="per cell (default 2; quick 1)")
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument(
+        "--merge", action="store_true", help="keep the other learners already in the output JSON"
+    )
     args = parser.parse_args()
     seeds = args.seeds or (1 if args.quick else 2)
     # Quick: a sane rate and an absurd one (1e4), which must be caught as diverged, not left NaN.
     lrs = [1e-3, 1e4] if args.quick else LRS
-    cells = []
+    cells, algos = [], list(args.algos)
+    stem = "learner_stability" + ("_quick" if args.quick else "")
+    previous = args.out / f"{stem}.json"
+    if args.merge and previous.exists():
+        old = json.loads(previous.read_text())
+        cells = [c for c in old["cells"] if c["algo"] not in args.algos]
+        algos = sorted({c["algo"] for c in cells} | set(args.algos))
     for algo in args.algos:
         setup = SETUPS[algo]
         for batch in (setup["quick"] if args.quick else setup)["batches"]:
@@ -287,12 +297,11 @@ def main() -> None:
         "command": "python experiments/learner_stability.py" + (" --quick" if args.quick else ""),
         "machine": f"{platform.machine()}, {jax.devices()[0].platform}, {len(jax.devices())} device(s)",
         "jax": jax.__version__,
-        "algos": args.algos,
+        "algos": algos,
         "seeds": seeds,
         "cells": cells,
     }
     args.out.mkdir(parents=True, exist_ok=True)
-    stem = "learner_stability" + ("_quick" if args.quick else "")
     (args.out / f"{stem}.json").write_text(json.dumps(result, indent=1))
     write_md(result, args.out / f"{stem}.md")
     plot(result, args.out / f"{stem}.png")
