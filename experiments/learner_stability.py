@@ -241,7 +241,8 @@ def plot(result: dict, path: pathlib.Path) -> None:
                 t = table[(algo, b, lr)]
                 tags = "".join(o[0].upper() for o in t["outcomes"])
                 label = f"{tags}\n{t['median_final']:.0f}".replace("\nnan", "")
-                ax.text(j, i, label, ha="center", va="center", fontsize=7)
+                colour = "white" if grid[i, j] > 0.7 else "black"
+                ax.text(j, i, label, ha="center", va="center", fontsize=7, color=colour)
                 if (lr, b) == tuple(SETUPS[algo]["shipped"]):
                     ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=2, ec="blue"))
         ax.set_xticks(range(len(lrs)), [f"{lr:g}" for lr in lrs], rotation=45)
