@@ -2,6 +2,7 @@
 
     python experiments/stability_map.py                          # ten envs, ~2 h on 2 busy cores
     python experiments/stability_map.py --envs ant hopper        # a subset
+    python experiments/stability_map.py --envs walker2d --merge  # add envs to the committed map
     python experiments/stability_map.py --integrators euler rk4  # both integrators (twice the cost)
     python experiments/stability_map.py --quick                  # tiny, for CI (~20 s)
 
@@ -386,9 +387,16 @@ def main() -> None:
                         help="default: each env's shipped integrator")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=None, help="per cell (default: EPISODES)")
     parser.add_argument("--steps", type=int, default=None, help=f"control steps per episode ({STEPS})")
+    parser.add_argument("--merge", action="store_true", help="keep the other envs already in the output JSON")
     args = parser.parse_args()
     names = args.envs or ([QUICK_ENV] if args.quick else list(ENVS))
-    results = {}
+    stem = "stability_map_quick" if args.quick else "stability_map"
+    results, wall_before = {}, 0.0
+    if args.merge and (args.out / f"{stem}.json").exists():
+        old = json.loads((args.out / f"{stem}.json").read_text())
+        results = {k: v for k, v in old["envs"].items() if k not in names}
+        wall_before = old["wall_s"] if results else 0.0
+        print(f"keeping {', '.join(results) or 'no envs'} from {args.out / f'{stem}.json'}")
     t0 = time.perf_counter()
     for name in names:
         task = env_task(name)
@@ -397,13 +405,16 @@ def main() -> None:
         plan = {"quick": args.quick, "iterations": iterations, "integrators": args.integrators,
                 "episodes": episodes, "steps": args.steps or (50 if args.quick else STEPS)}  # fmt: skip
         results[name] = map_env(task, plan)
-    wall = time.perf_counter() - t0
+    wall = time.perf_counter() - t0 + wall_before
+    order = [*ENVS, *sorted(set(results) - set(ENVS))]
+    results = {name: results[name] for name in order if name in results}
 
     cpu = platform.processor() or platform.machine()
     machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}"
     command = "python experiments/stability_map.py" + (" --quick" if args.quick else "")
+    if args.envs:
+        command += " --envs " + " ".join(args.envs) + (" --merge" if args.merge else "")
     args.out.mkdir(parents=True, exist_ok=True)
-    stem = "stability_map_quick" if args.quick else "stability_map"
     payload = {"machine": machine, "command": command, "wall_s": wall,
                "penetration_bound": PENETRATION_BOUND, "qvel_bound": QVEL_BOUND, "envs": results}  # fmt: skip
     (args.out / f"{stem}.json").write_text(json.dumps(payload, indent=1))
