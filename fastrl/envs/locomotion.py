@@ -32,7 +32,8 @@ class Ant(Env):
     """Quadruped running forward (+x). Gymnasium ``Ant-v5``.
 
     Observation (105): qpos[2:] (13), qvel (14), cfrc_ext of the 13 bodies clipped to
-    ``contact_force_range`` (78). Reward: ``forward`` x-velocity of the torso (weight 1),
+    ``contact_force_range`` (78); with ``include_cfrc_ext_in_observation=False`` (Gymnasium's
+    keyword of the same name, and Brax's Ant default) only the first 27. Reward: ``forward`` x-velocity of the torso (weight 1),
     ``healthy`` 1 while healthy (weight 1), ``ctrl`` -|a|^2 (0.5), ``contact`` -|clipped
     cfrc_ext|^2 (5e-4). Terminates when the state is non-finite or torso z leaves [0.2, 1].
     """
@@ -46,6 +47,10 @@ class Ant(Env):
     contact_force_range = (-1.0, 1.0)
     main_body = 1
 
+    def __init__(self, *, include_cfrc_ext_in_observation: bool = True, **kwargs):
+        self.include_cfrc_ext_in_observation = bool(include_cfrc_ext_in_observation)
+        super().__init__(**kwargs)
+
     def _reset_qpos_qvel(self, key, model):
         return _uniform_reset(self, key, model, normal_qvel=True)
 
@@ -54,6 +59,8 @@ class Ant(Env):
         return jnp.clip(physics.cfrc_ext(model, data), lo, hi)
 
     def _observe(self, model, data):
+        if not self.include_cfrc_ext_in_observation:
+            return jnp.concatenate([data.qpos[2:], data.qvel])
         cfrc = self._contact_forces(model, data)[1:].ravel()
         return jnp.concatenate([data.qpos[2:], data.qvel, cfrc])
 

@@ -122,3 +122,17 @@ def test_vector_env_same_step_autoreset_and_async(pendulum):
     np.testing.assert_array_equal(after[[0, 2, 3, 5]], before[[0, 2, 3, 5]])
     with pytest.raises(ValueError, match="actions have shape"):
         venv.step(np.zeros((5, 1)))
+
+
+def test_ant_can_leave_contact_forces_out_of_its_observation():
+    """Gymnasium v5's ``include_cfrc_ext_in_observation`` keyword, also reachable from config."""
+    from fastrl.config import EnvConfig
+
+    full = envs.make("ant")
+    short = EnvConfig(name="ant", options={"include_cfrc_ext_in_observation": False}).make()
+    gym_short = gymnasium.make("Ant-v5", include_cfrc_ext_in_observation=False)
+    assert (full.observation_size, short.observation_size) == (105, 27)
+    assert gym_short.observation_space.shape == (short.observation_size,)
+    state = full.reset(jax.random.PRNGKey(0))
+    np.testing.assert_array_equal(short._observe(full.model, state.data), state.obs[:27])
+    assert envs.make("ant_goal", include_cfrc_ext_in_observation=False).observation_size == 31

@@ -167,6 +167,11 @@ def test_collapse_watch_flags_a_return_that_falls_back():
     assert w.update(0, 90) is False and w.ever[0]  # recovered; it did collapse once
     # Agent 1 never gains more than noise (10% of |first| + 1), so no fall counts as a collapse.
     assert not any(w.update(1, r) for r in (-100, -95, -105, -99))
+    # A large baseline (the Ant's ~1000 for standing): a wobble of 12% of the best is no
+    # collapse even though it gives back most of a small gain; losing half the return is.
+    ant = CollapseWatch(1)
+    assert not any(ant.update(0, r) for r in (944, 1008, 1113, 988, 1032))
+    assert ant.update(0, 500) is True
     # The history survives a checkpoint (JSON metadata) and judges the same way after a resume.
     import json
 
