@@ -13,7 +13,8 @@ sizes change shapes, so each is its own program. The runner itself classifies ev
 * **diverged**: a loss became non-finite (the runner flags the agent, ``train/diverged``, and
   never checkpoints a batch whose agents all diverged);
 * **collapsed**: at the end its evaluation return had fallen back more than halfway from its best
-  to its first evaluation and by more than a quarter of its best, after a real gain (``CollapseWatch``, logged as ``train/collapsed``);
+  to its first evaluation and by more than a quarter of its best, after a real gain
+  (``CollapseWatch``, logged as ``train/collapsed``);
 * otherwise **learned** when the final deterministic evaluation return reaches ``TARGET`` of the
   task's best return, else **stalled** (trained without failing, but not far enough in the
   budget).

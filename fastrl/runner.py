@@ -302,7 +302,7 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                     if jax.process_index() == 0:
                         write_viewer(run_dir, chunk, params, jax.random.PRNGKey(cfg.seed + 1))
                 for i, (r, out) in enumerate(zip(rows, outs, strict=True)):
-                    r.update(chunk=chunk, env_steps=_env_steps(state, i), wall_s=wall)
+                    r.update(chunk=chunk, env_steps=_env_steps(state, i), wall_s=wall, time_unix=time.time())
                     r["perf/env_steps_per_s"] = k * steps_per_update / dt
                     r["perf/compile_s"] = compile_s
                     if n_agents > 1:
@@ -348,9 +348,7 @@ class CollapseWatch:
     may recover); the flag is logged as ``train/collapsed`` and in the summary. The history is
     part of the checkpoint's metadata, so a resumed run judges the same way."""
 
-    def __init__(
-        self, n_agents: int, fraction: float = 0.5, min_gain: float = 0.1, min_fall: float = 0.25, history=None
-    ):
+    def __init__(self, n_agents: int, fraction=0.5, min_gain=0.1, min_fall=0.25, history=None):
         self.fraction, self.min_gain, self.min_fall = fraction, min_gain, min_fall
         h = history or {}
         self.first = list(h.get("first", [None] * n_agents))

@@ -129,3 +129,20 @@ def test_learner_stability_quick(tmp_path):
     md = (tmp_path / "learner_stability_quick.md").read_text()
     assert md.startswith("# Learner stability") and "| 256 | *" in md
     assert (tmp_path / "learner_stability_quick.png").stat().st_size > 0
+
+
+def test_time_to_return_quick(tmp_path):
+    stem = "time_to_return_inverted_pendulum"
+    result = _run_quick("time_to_return.py", tmp_path, f"{stem}_quick.json")
+    (run,) = result["runs"]
+    assert run["learner"] == "fastrl" and run["curve"], run
+    seconds, steps, _ = run["curve"][-1]
+    assert seconds > 0 and steps == 1024
+    assert result["summary"]["fastrl"]["runs"] == 1
+    # the saved run re-renders with --from-json
+    again = tmp_path / "again"
+    script, saved = ROOT / "experiments" / "time_to_return.py", tmp_path / f"{stem}_quick.json"
+    subprocess.run([sys.executable, str(script), "--from-json", str(saved), "--out", str(again)], check=True)
+    md = (again / "time_to_return_inverted_pendulum.md").read_text()
+    assert md.startswith("# Time to eval return 950: inverted_pendulum") and "| fastrl | 1 |" in md
+    assert (again / "time_to_return_inverted_pendulum.png").stat().st_size > 0

@@ -33,9 +33,10 @@ class Ant(Env):
 
     Observation (105): qpos[2:] (13), qvel (14), cfrc_ext of the 13 bodies clipped to
     ``contact_force_range`` (78); with ``include_cfrc_ext_in_observation=False`` (Gymnasium's
-    keyword of the same name, and Brax's Ant default) only the first 27. Reward: ``forward`` x-velocity of the torso (weight 1),
-    ``healthy`` 1 while healthy (weight 1), ``ctrl`` -|a|^2 (0.5), ``contact`` -|clipped
-    cfrc_ext|^2 (5e-4). Terminates when the state is non-finite or torso z leaves [0.2, 1].
+    keyword of the same name, and Brax's Ant default) only the first 27. Reward: ``forward``
+    x-velocity of the torso (weight 1), ``healthy`` 1 while healthy (weight 1), ``ctrl`` -|a|^2
+    (0.5), ``contact`` -|clipped cfrc_ext|^2 (5e-4). Terminates when the state is non-finite or
+    torso z leaves [0.2, 1].
     """
 
     name = "ant"

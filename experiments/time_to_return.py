@@ -1,0 +1,217 @@
+"""Time to return: fastrl's PPO against Brax's own PPO, same task, same machine, one session.
+
+    python experiments/time_to_return.py --task inverted_pendulum --seeds 0 1 2   # ~10 min
+    python experiments/time_to_return.py --task ant --seeds 0 1 2                 # ~1 h on 2 cores
+    python experiments/time_to_return.py --quick                                  # tiny, for CI
+
+For each seed it runs Brax's PPO (``experiments/peers/brax_ppo.py`` in ``.venv-peers``), then
+``python -m fastrl.train`` with the task's shipped settings, and records each evaluation's
+return against the wall-clock seconds from launching that process to the evaluation (both
+sides the same way: interpreter start-up, imports, compiles and earlier evaluations included). It
+reports per learner the median over seeds of the seconds to first reach the task's target,
+and the ratio. Writes ``experiments/results/time_to_return_<task>.{json,md,png}``.
+
+Tasks:
+
+* ``ant``: fastrl's Ant (Gymnasium v5's, MuJoCo-faithful physics, ``experiment/ant_ppo``) vs
+  Brax's ``ant`` on its fastest ``spring`` backend with Brax's published Ant hyperparameters at
+  1024 envs and batch 512 (issue 5's comparison). Brax's spring Ant is not the same physics:
+  only its feet collide, and the spring model is not MuJoCo's. Target 3000.
+* ``inverted_pendulum``: both sides the same MuJoCo model and task (Brax's ``generalized``
+  backend, its default) with the *same* PPO settings, fastrl's ``experiment/
+  inverted_pendulum_ppo`` written in Brax's terms (64 envs x 16-step unrolls, 4 minibatches,
+  4 epochs, learning rate 1e-3, discount 0.99, entropy 1e-3, 2x32 policy and 2x64 value
+  networks). Target 950 of 1000.
+
+Both evaluate 1000-step episodes; fastrl's evaluation uses the mean action, Brax 0.14's its
+stochastic policy (its default), which on these tasks makes Brax's numbers no higher.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PEERS = ROOT / ".venv-peers" / "bin" / "python"
+RESULTS = ROOT / "experiments" / "results"
+
+TASKS = {
+    "ant": {
+        "target": 3000.0,
+        # an evaluation every 5 updates (409,600 env steps)
+        "fastrl": ["env=ant", "algo=ppo", "train.updates_per_chunk=5"],
+        "fastrl_steps": 4_096_000,
+        "brax": "--env ant --backend spring --num-envs 1024 --batch-size 512 --num-evals 20".split(),
+        "brax_steps": 4_000_000,
+    },
+    "inverted_pendulum": {
+        "target": 950.0,
+        "fastrl": ["env=inverted_pendulum", "algo=ppo"],
+        "fastrl_steps": 153_600,
+        "brax": (
+            "--env inverted_pendulum --backend generalized --num-envs 64 --batch-size 16 --num-minibatches 4"
+            " --unroll-length 16 --num-updates-per-batch 4 --learning-rate 1e-3 --discounting 0.99"
+            " --entropy-cost 1e-3 --reward-scaling 1 --policy-hidden 32 32 --value-hidden 64 64"
+            " --num-eval-envs 16 --num-evals 16"
+        ).split(),
+        "brax_steps": 153_600,
+    },
+}
+
+
+def run_brax(task: dict, seed: int, steps: int) -> list[tuple[float, int, float]]:
+    cmd = [str(PEERS), str(ROOT / "experiments/peers/brax_ppo.py"), *task["brax"], "--seed", str(seed),
+           "--num-timesteps", str(steps)]  # fmt: skip
+    launched = time.time()
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=7200)
+    if out.returncode:
+        raise RuntimeError(f"Brax's PPO failed ({out.returncode}):\n{out.stderr[-3000:]}")
+    curve = []
+    for line in out.stdout.splitlines():
+        rec = json.loads(line)
+        if rec.get("event") == "eval":
+            curve.append((rec["time_unix"] - launched, rec["env_steps"], rec["eval_return"]))
+    return curve
+
+
+def run_fastrl(task: dict, seed: int, steps: int, quick: bool) -> list[tuple[float, int, float]]:
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "fastrl.train", *task["fastrl"], f"seed={seed}", f"run_dir={tmp}/run",
+               f"train.total_env_steps={steps}", "logger=quiet"]  # fmt: skip
+        if quick:
+            cmd += ["debug=quick"]
+        launched = time.time()
+        subprocess.run(cmd, check=True, cwd=ROOT, timeout=7200, capture_output=True)
+        rows = (pathlib.Path(tmp) / "run" / "metrics.csv").read_text().splitlines()
+    header = rows[0].split(",")
+    curve = []
+    for row in rows[1:]:
+        rec = dict(zip(header, row.split(","), strict=True))
+        if rec.get("eval/episode_return"):
+            seconds = float(rec["time_unix"]) - launched
+            curve.append((seconds, int(rec["env_steps"]), float(rec["eval/episode_return"])))
+    return curve
+
+
+def time_to(curve, target: float) -> float | None:
+    return next((t for t, _, r in curve if r >= target), None)
+
+
+def summarize(runs: list[dict]) -> dict:
+    summary = {}
+    for name in ("brax", "fastrl"):
+        times = [r["time_to_target"] for r in runs if r["learner"] == name]
+        reached = [t for t in times if t is not None]
+        median = float(np.median(reached)) if times and len(reached) == len(times) else None
+        finals = [r["curve"][-1][2] for r in runs if r["learner"] == name and r["curve"]]
+        summary[name] = {
+            "runs": len(times),
+            "reached": len(reached),
+            "median_s": median,
+            "median_final_return": float(np.median(finals)) if finals else None,
+            "median_wall_s": float(np.median([r["curve"][-1][0] for r in runs if r["learner"] == name]))
+            if finals
+            else None,
+        }
+    return summary
+
+
+def write(result: dict, out: pathlib.Path, stem: str) -> None:
+    """The JSON, a markdown table and the chart, all from ``result``."""
+    out.mkdir(parents=True, exist_ok=True)
+    result["summary"] = summarize(result["runs"])
+    (out / f"{stem}.json").write_text(json.dumps(result, indent=1))
+    target = result["target"]
+    lines = [f"# Time to eval return {target:g}: {result['task']}, fastrl PPO vs Brax PPO", "",
+             f"Machine: {result.get('machine', '?')}. Command: `{result['command']}`.", "",
+             "| learner | seeds | reached target | median s to target | median final return | median run s |",
+             "| --- | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
+    for name, s in result["summary"].items():
+        if not s["runs"]:
+            continue
+        med = f"{s['median_s']:.0f}" if s["median_s"] is not None else "not reached by all"
+        final = f"{s['median_final_return']:.0f}" if s["median_final_return"] is not None else "-"
+        wall = f"{s['median_wall_s']:.0f}" if s["median_wall_s"] is not None else "-"
+        lines.append(f"| {name} | {s['runs']} | {s['reached']} | {med} | {final} | {wall} |")
+    b, f = result["summary"]["brax"]["median_s"], result["summary"]["fastrl"]["median_s"]
+    if b and f:
+        lines += ["", f"fastrl takes {f / b:.2f}x Brax's wall time to reach {target:g} (median of seeds)."]
+    if result.get("note"):
+        lines += ["", result["note"]]
+    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
+    _plot(result["runs"], out / f"{stem}.png", target, result["task"])
+
+
+def _plot(runs, path, target, task):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
+    colors = {"brax": "tab:orange", "fastrl": "tab:blue"}
+    for r in runs:
+        if r["curve"]:
+            t, _, ret = zip(*r["curve"], strict=True)
+            label = f"{r['learner']} seed {r['seed']}"
+            ax.plot(t, ret, color=colors[r["learner"]], alpha=0.8, marker=".", label=label)
+    ax.axhline(target, color="gray", ls="--", lw=1)
+    ax.set_title(f"PPO on {task}: eval return vs wall clock (this CPU)")
+    ax.set_xlabel("wall-clock seconds (start-up and compile included)")
+    ax.set_ylabel("eval episode return")
+    ax.legend(fontsize=7)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--task", choices=sorted(TASKS), default="inverted_pendulum")
+    parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
+    parser.add_argument("--brax-steps", type=int, default=None, help="default: the task's")
+    parser.add_argument("--fastrl-steps", type=int, default=None, help="default: the task's")
+    parser.add_argument("--quick", action="store_true", help="one seed, fastrl only, tiny budget")
+    parser.add_argument("--skip-brax", action="store_true")
+    parser.add_argument("--from-json", type=pathlib.Path, help="re-render the table and chart of a saved run")
+    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    if args.from_json:
+        result = json.loads(args.from_json.read_text())
+        write(result, args.out, f"time_to_return_{result['task']}")
+        return
+    task = TASKS[args.task]
+    seeds = args.seeds[:1] if args.quick else args.seeds
+    skip_brax = args.skip_brax or args.quick or not PEERS.exists()
+    if skip_brax and not (args.skip_brax or args.quick):
+        print(
+            f"[time_to_return] no {PEERS}: Brax skipped (see experiments/peers/setup_peers.sh)",
+            file=sys.stderr,
+        )
+    runs = []
+    for seed in seeds:
+        if not skip_brax:
+            curve = run_brax(task, seed, args.brax_steps or task["brax_steps"])
+            runs.append({"learner": "brax", "seed": seed, "curve": curve})
+        steps = 1024 if args.quick else (args.fastrl_steps or task["fastrl_steps"])
+        runs.append({"learner": "fastrl", "seed": seed, "curve": run_fastrl(task, seed, steps, args.quick)})
+    for r in runs:
+        r["time_to_target"] = time_to(r["curve"], task["target"])
+    command = "python experiments/time_to_return.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    result = {"task": args.task, "target": task["target"], "command": command.strip(),
+              "machine": f"{os.cpu_count()} CPU cores", "runs": runs}  # fmt: skip
+    write(result, args.out, f"time_to_return_{args.task}" + ("_quick" if args.quick else ""))
+
+
+if __name__ == "__main__":
+    main()
