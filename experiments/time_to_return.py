@@ -46,6 +46,7 @@ RESULTS = ROOT / "experiments" / "results"
 
 TASKS = {
     "ant": {
+        "label": "the Ant (fastrl: Gymnasium v5's; Brax: its spring Ant)",
         "target": 3000.0,
         # an evaluation every 5 updates (409,600 env steps)
         "fastrl": ["env=ant", "algo=ppo", "train.updates_per_chunk=5"],
@@ -54,6 +55,7 @@ TASKS = {
         "brax_steps": 4_000_000,
     },
     "inverted_pendulum": {
+        "label": "inverted_pendulum (same task and settings)",
         "target": 950.0,
         "fastrl": ["env=inverted_pendulum", "algo=ppo"],
         "fastrl_steps": 153_600,
@@ -165,7 +167,7 @@ def _plot(runs, path, target, task):
             label = f"{r['learner']} seed {r['seed']}"
             ax.plot(t, ret, color=colors[r["learner"]], alpha=0.8, marker=".", label=label)
     ax.axhline(target, color="gray", ls="--", lw=1)
-    ax.set_title(f"PPO on {task}: eval return vs wall clock (this CPU)")
+    ax.set_title(f"PPO on {TASKS.get(task, {}).get('label', task)}", fontsize=10)
     ax.set_xlabel("wall-clock seconds (start-up and compile included)")
     ax.set_ylabel("eval episode return")
     ax.legend(fontsize=7)
