@@ -111,18 +111,15 @@ def time_to(curve, target: float) -> float | None:
 def summarize(runs: list[dict]) -> dict:
     summary = {}
     for name in ("brax", "fastrl"):
-        times = [r["time_to_target"] for r in runs if r["learner"] == name]
-        reached = [t for t in times if t is not None]
-        median = float(np.median(reached)) if times and len(reached) == len(times) else None
-        finals = [r["curve"][-1][2] for r in runs if r["learner"] == name and r["curve"]]
+        mine = [r for r in runs if r["learner"] == name]
+        reached = [r["time_to_target"] for r in mine if r["time_to_target"] is not None]
+        lasts = [r["curve"][-1] for r in mine if r["curve"]]  # (seconds, steps, return) of each run's end
         summary[name] = {
-            "runs": len(times),
+            "runs": len(mine),
             "reached": len(reached),
-            "median_s": median,
-            "median_final_return": float(np.median(finals)) if finals else None,
-            "median_wall_s": float(np.median([r["curve"][-1][0] for r in runs if r["learner"] == name]))
-            if finals
-            else None,
+            "median_s": float(np.median(reached)) if mine and len(reached) == len(mine) else None,
+            "median_final_return": float(np.median([last[2] for last in lasts])) if lasts else None,
+            "median_wall_s": float(np.median([last[0] for last in lasts])) if lasts else None,
         }
     return summary
 
