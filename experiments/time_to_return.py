@@ -104,6 +104,23 @@ def run_fastrl(task: dict, seed: int, steps: int, quick: bool) -> list[tuple[flo
     return curve
 
 
+def reused_brax_runs(path: pathlib.Path, task: str, seeds: list[int]) -> tuple[list[dict], str]:
+    """Brax's runs for ``seeds`` from a saved result, and a note for the table saying so."""
+    saved = json.loads(path.read_text())
+    if saved.get("task") != task:
+        raise SystemExit(f"--brax-from {path} holds task {saved.get('task')!r}, not {task!r}")
+    runs = [r for r in saved["runs"] if r["learner"] == "brax" and r["seed"] in seeds]
+    missing = sorted(set(seeds) - {r["seed"] for r in runs})
+    if missing:
+        raise SystemExit(f"--brax-from {path} has no Brax run for seeds {missing}")
+    note = (
+        f"Brax's runs are reused from an earlier run of this script (`{saved['command']}`, "
+        f"{saved.get('machine', '?')}), not measured again alongside fastrl's."
+        + (f" That run's note: {saved['note']}" if saved.get("note") else "")
+    )
+    return runs, note
+
+
 def time_to(curve, target: float) -> float | None:
     return next((t for t, _, r in curve if r >= target), None)
 
@@ -182,6 +199,10 @@ def main(argv=None) -> None:
     parser.add_argument("--fastrl-steps", type=int, default=None, help="default: the task's")
     parser.add_argument("--quick", action="store_true", help="one seed, fastrl only, tiny budget")
     parser.add_argument("--skip-brax", action="store_true")
+    parser.add_argument(
+        "--brax-from", type=pathlib.Path,
+        help="reuse the Brax runs of a saved result JSON instead of running Brax again (the table says so)",
+    )  # fmt: skip
     parser.add_argument("--from-json", type=pathlib.Path, help="re-render the table and chart of a saved run")
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     args = parser.parse_args(argv)
@@ -191,13 +212,13 @@ def main(argv=None) -> None:
         return
     task = TASKS[args.task]
     seeds = args.seeds[:1] if args.quick else args.seeds
-    skip_brax = args.skip_brax or args.quick or not PEERS.exists()
-    if skip_brax and not (args.skip_brax or args.quick):
+    skip_brax = args.skip_brax or args.quick or args.brax_from is not None or not PEERS.exists()
+    if skip_brax and not (args.skip_brax or args.quick or args.brax_from):
         print(
             f"[time_to_return] no {PEERS}: Brax skipped (see experiments/peers/setup_peers.sh)",
             file=sys.stderr,
         )
-    runs = []
+    runs, note = reused_brax_runs(args.brax_from, args.task, seeds) if args.brax_from else ([], None)
     for seed in seeds:
         if not skip_brax:
             curve = run_brax(task, seed, args.brax_steps or task["brax_steps"])
@@ -209,6 +230,8 @@ def main(argv=None) -> None:
     command = "python experiments/time_to_return.py " + " ".join(sys.argv[1:] if argv is None else argv)
     result = {"task": args.task, "target": task["target"], "command": command.strip(),
               "machine": f"{os.cpu_count()} CPU cores", "runs": runs}  # fmt: skip
+    if note:
+        result["note"] = note
     write(result, args.out, f"time_to_return_{args.task}" + ("_quick" if args.quick else ""))
 
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import pathlib
 import subprocess
 import sys
 
+import pytest
 from omegaconf import OmegaConf
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -146,3 +148,19 @@ def test_time_to_return_quick(tmp_path):
     md = (again / "time_to_return_inverted_pendulum.md").read_text()
     assert md.startswith("# Time to eval return 950: inverted_pendulum") and "| fastrl | 1 |" in md
     assert (again / "time_to_return_inverted_pendulum.png").stat().st_size > 0
+
+
+def test_time_to_return_reuses_saved_brax_runs_and_says_so(tmp_path):
+    spec = importlib.util.spec_from_file_location("ttr", ROOT / "experiments" / "time_to_return.py")
+    ttr = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ttr)
+    brax = [{"learner": "brax", "seed": s, "curve": [[10.0 + s, 1000, 900.0]]} for s in (0, 1)]
+    saved = tmp_path / "saved.json"
+    runs = brax + [{"learner": "fastrl", "seed": 0}]
+    saved.write_text(json.dumps({"task": "ant", "command": "python x", "note": "old caveat", "runs": runs}))
+    runs, note = ttr.reused_brax_runs(saved, "ant", [1])
+    assert runs == [brax[1]] and "not measured again" in note and "old caveat" in note
+    with pytest.raises(SystemExit, match="no Brax run for seeds \\[2\\]"):
+        ttr.reused_brax_runs(saved, "ant", [1, 2])
+    with pytest.raises(SystemExit, match="holds task 'ant'"):
+        ttr.reused_brax_runs(saved, "inverted_pendulum", [0])

@@ -44,6 +44,12 @@ class PPOConfig:
       clip_eps                policy ratio clipping
       value_clip_eps          value clipping around the old value (None: off)
       entropy_cost            entropy bonus weight
+      entropy_estimate        "gaussian": the pre-tanh Gaussian's entropy (closed form);
+                              "squashed": the action's entropy after tanh, estimated at one
+                              reparameterised sample per step (Brax's choice)
+      init_std                the policy's pre-tanh scale at initialisation (None: 0.694, i.e.
+                              softplus(0)); smaller starts with gentler exploration and smaller
+                              control costs
       value_cost              value loss weight
       max_grad_norm           global gradient-norm clip
       reward_scaling          rewards are multiplied by this in the losses
@@ -62,6 +68,8 @@ class PPOConfig:
     clip_eps: float = 0.3
     value_clip_eps: float | None = None
     entropy_cost: float = 1e-2
+    entropy_estimate: str = "gaussian"
+    init_std: float | None = None
     value_cost: float = 0.5
     max_grad_norm: float = 1.0
     reward_scaling: float = 1.0
@@ -80,6 +88,10 @@ class PPOConfig:
             )
         if self.lr_schedule not in ("constant", "linear"):
             raise ValueError(f"algo.lr_schedule={self.lr_schedule!r}; choose 'constant' or 'linear'")
+        if self.entropy_estimate not in ("gaussian", "squashed"):
+            raise ValueError(
+                f"algo.entropy_estimate={self.entropy_estimate!r}; choose 'gaussian' or 'squashed'"
+            )
         if not 0.0 < self.gamma <= 1.0 or not 0.0 <= self.gae_lambda <= 1.0:
             raise ValueError("algo.gamma must be in (0, 1] and algo.gae_lambda in [0, 1]")
         if self.learning_rate <= 0:
@@ -171,7 +183,7 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
     """
     obs_size, nu = env.observation_size, env.action_size
     low, high = (jnp.asarray(b) for b in env.action_bounds)
-    dist = TanhGaussian(low, high)
+    dist = TanhGaussian(low, high, config.init_std)
     policy_net = MLP(network.policy_hidden, 2 * nu, network.activation)
     value_net = MLP(network.value_hidden, 1, network.activation, final_scale=1.0)
     steps_per_update = config.update_epochs * config.num_minibatches
@@ -210,7 +222,7 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
 
         return jax.lax.scan(one, state.env_state, jax.random.split(key, config.unroll_length))
 
-    def loss_fn(params, stats, batch, adv, targets, old_values):
+    def loss_fn(params, stats, batch, adv, targets, old_values, key):
         obs = norm(stats, batch.obs)
         out = policy_net.apply(params["policy"], obs)
         log_prob = dist.log_prob(out, batch.raw_action)
@@ -225,7 +237,10 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
             v_clip = old_values + jnp.clip(value - old_values, -config.value_clip_eps, config.value_clip_eps)
             v_loss = jnp.maximum(v_loss, (v_clip - targets) ** 2)
         value_loss = 0.5 * jnp.mean(v_loss)
-        entropy = jnp.mean(dist.entropy(out))
+        if config.entropy_estimate == "squashed":
+            entropy = jnp.mean(dist.squashed_entropy(out, key))
+        else:
+            entropy = jnp.mean(dist.entropy(out))
         total = policy_loss + config.value_cost * value_loss - config.entropy_cost * entropy
         stats_out = {
             "policy_loss": policy_loss,
@@ -247,15 +262,16 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
 
             def minibatch(carry, mb):
                 params, opt_state = carry
-                batch, adv, targets, old_values = mb
+                (batch, adv, targets, old_values), k_ent = mb
                 grads, info = jax.grad(loss_fn, has_aux=True)(
-                    params, state.obs_stats, batch, adv, targets, old_values
+                    params, state.obs_stats, batch, adv, targets, old_values, k_ent
                 )
                 updates, opt_state = optimizer.update(grads, opt_state, params)
                 info["grad_norm"] = optax.tree.norm(grads)
                 return (optax.apply_updates(params, updates), opt_state), info
 
-            return jax.lax.scan(minibatch, (params, opt_state), shuffled)
+            ent_keys = jax.random.split(jax.random.fold_in(k, 1), config.num_minibatches)
+            return jax.lax.scan(minibatch, (params, opt_state), (shuffled, ent_keys))
 
         keys = jax.random.split(key, config.update_epochs)
         (params, opt_state), info = jax.lax.scan(epoch, (state.params, state.opt_state), keys)
