@@ -3,6 +3,7 @@
     python experiments/time_to_return.py --task inverted_pendulum --seeds 0 1 2   # ~10 min
     python experiments/time_to_return.py --task ant --seeds 0 1 2                 # ~1 h on 2 cores
     python experiments/time_to_return.py --quick                                  # tiny, for CI
+    python experiments/time_to_return.py --task ant --brax-from OLD.json  # re-run fastrl, reuse Brax's
 
 For each seed it runs Brax's PPO (``experiments/peers/brax_ppo.py`` in ``.venv-peers``), then
 ``python -m fastrl.train`` with the task's shipped settings, and records each evaluation's
@@ -116,7 +117,11 @@ def reused_brax_runs(path: pathlib.Path, task: str, seeds: list[int]) -> tuple[l
     note = (
         f"Brax's runs are reused from an earlier run of this script (`{saved['command']}`, "
         f"{saved.get('machine', '?')}), not measured again alongside fastrl's."
-        + (f" That run's note: {saved['note']}" if saved.get("note") else "")
+        + (
+            f" That run's note (its fastrl runs are replaced here): {saved['note']}"
+            if saved.get("note")
+            else ""
+        )
     )
     return runs, note
 
