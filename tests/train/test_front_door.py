@@ -165,8 +165,9 @@ def test_collapse_watch_flags_a_return_that_falls_back():
     # Agent 0 learns (10 -> 100) then falls to 40: more than half the gain lost.
     assert [w.update(0, r) for r in (10, 60, 100, 70, 40)] == [False, False, False, False, True]
     assert w.update(0, 90) is False and w.ever[0]  # recovered; it did collapse once
-    # Agent 1 never gains more than noise (10% of |first| + 1), so no fall counts as a collapse.
-    assert not any(w.update(1, r) for r in (-100, -95, -105, -99))
+    # Agent 1 never gains more than noise (15% of |first| + 1), so no fall counts as a collapse:
+    # an untrained HalfCheetah's evaluations (PPO, halfcheetah, first 5 chunks) are no collapse.
+    assert not any(w.update(1, r) for r in (-180.3, -159.5, -181.5, -195.8, -208.1))
     # A large baseline (the Ant's ~1000 for standing): a wobble of 12% of the best is no
     # collapse even though it gives back most of a small gain; losing half the return is.
     ant = CollapseWatch(1)
