@@ -117,12 +117,9 @@ def reused_brax_runs(path: pathlib.Path, task: str, seeds: list[int]) -> tuple[l
     note = (
         f"Brax's runs are reused from an earlier run of this script (`{saved['command']}`, "
         f"{saved.get('machine', '?')}), not measured again alongside fastrl's."
-        + (
-            f" That run's note (its fastrl runs are replaced here): {saved['note']}"
-            if saved.get("note")
-            else ""
-        )
     )
+    if saved.get("note"):
+        note += f" That run's note (its fastrl runs are replaced here): {saved['note']}"
     return runs, note
 
 

@@ -270,7 +270,9 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
                 info["grad_norm"] = optax.tree.norm(grads)
                 return (optax.apply_updates(params, updates), opt_state), info
 
-            ent_keys = jax.random.split(jax.random.fold_in(k, 1), config.num_minibatches)
+            ent_keys = None  # only the squashed estimate samples
+            if config.entropy_estimate == "squashed":
+                ent_keys = jax.random.split(jax.random.fold_in(k, 1), config.num_minibatches)
             return jax.lax.scan(minibatch, (params, opt_state), (shuffled, ent_keys))
 
         keys = jax.random.split(key, config.update_epochs)
