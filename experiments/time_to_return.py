@@ -1,18 +1,22 @@
-"""Time to return: fastrl's PPO against Brax's own PPO, same task, same machine, one session.
+"""Time to return: a fastrl learner against the same algorithm in Brax, same task, same machine.
 
     python experiments/time_to_return.py --task inverted_pendulum --seeds 0 1 2   # ~10 min
     python experiments/time_to_return.py --task ant --seeds 0 1 2                 # ~1 h on 2 cores
+    python experiments/time_to_return.py --task hopper_sac --seeds 0 --stop-at-target
     python experiments/time_to_return.py --quick                                  # tiny, for CI
     python experiments/time_to_return.py --task ant --brax-from OLD.json  # re-run fastrl, reuse Brax's
 
-For each seed it runs Brax's PPO (``experiments/peers/brax_ppo.py`` in ``.venv-peers``), then
-``python -m fastrl.train`` with the task's shipped settings, and records each evaluation's
-return against the wall-clock seconds from launching that process to the evaluation (both
-sides the same way: interpreter start-up, imports, compiles and earlier evaluations included). It
-reports per learner the median over seeds of the seconds to first reach the task's target,
-and the ratio. Writes ``experiments/results/time_to_return_<task>.{json,md,png}``.
+For each seed it runs Brax's learner (``experiments/peers/brax_ppo.py`` for PPO,
+``experiments/peers/brax_train.py`` for SAC, ES and APG, in ``.venv-peers``), then ``python -m
+fastrl.train`` with the task's shipped settings, and records each evaluation's return against
+the wall-clock seconds from launching that process to the evaluation (both sides the same way:
+interpreter start-up, imports, compiles and earlier evaluations included). It reports per
+learner the median over seeds of the seconds to first reach the task's target, and the ratio.
+``--stop-at-target`` ends each run at its first evaluation at or above the target (fastrl's
+``train.stop_at_return``; for Brax the peer script stops its ``progress_fn``). Writes
+``experiments/results/time_to_return_<task>.{json,md,png}``.
 
-Tasks:
+Tasks (PPO):
 
 * ``ant``: fastrl's Ant (Gymnasium v5's, MuJoCo-faithful physics, ``experiment/ant_ppo``) vs
   Brax's ``ant`` on its fastest ``spring`` backend with Brax's published Ant hyperparameters at
@@ -24,8 +28,23 @@ Tasks:
   4 epochs, learning rate 1e-3, discount 0.99, entropy 1e-3, 2x32 policy and 2x64 value
   networks). Target 950 of 1000.
 
-Both evaluate 1000-step episodes; fastrl's evaluation uses the mean action, Brax 0.14's its
-stochastic policy (its default), which on these tasks makes Brax's numbers no higher.
+Tasks (SAC, ES, APG), each with fastrl's shipped ``experiment/<env>_<algo>`` settings written
+in Brax's terms, on Brax's env of the same name with its default backend (``generalized``,
+MuJoCo's models converted by Brax), evaluating 16 episodes with the mean action on both sides:
+
+* ``hopper_sac`` (target 1000) and ``halfcheetah_sac`` (target 2000): 64 envs, 16 gradient
+  steps of batch 256 per 64 env steps, 10,000 random-action steps first, learning rate 6e-4,
+  discount 0.99, 2x256 networks, an evaluation every ~51k env steps. Differs: Brax's target
+  entropy is -0.5 x action size, fastrl's -action size (both their defaults).
+* ``halfcheetah_es`` (target 1000): 128 episodes of 1000 steps per update (Brax's
+  ``population_size=64`` antithetic pairs), perturbation std 0.05, learning rate 0.02,
+  centred-rank fitness, 2x32 policy, an evaluation every 640k env steps.
+* ``reacher_apg`` (target -10): 128 envs, gradients over 50-step horizons, learning rate 3e-3,
+  2x64 policy, on Gymnasium's 50-step reacher episodes (Brax's ``episode_length=50``).
+
+Both evaluate 1000-step episodes (reacher: 50); fastrl's evaluation uses the mean action. For
+PPO Brax 0.14 evaluates its stochastic policy (its default), which on these tasks makes Brax's
+numbers no higher; for SAC, ES and APG both sides evaluate the mean action.
 """
 
 from __future__ import annotations
@@ -69,15 +88,76 @@ TASKS = {
         "brax_steps": 153_600,
     },
 }
+_SAC_BRAX = (
+    "--algo sac --hidden 256 256 --set num_envs=64 grad_updates_per_step=16 batch_size=256 learning_rate=6e-4"
+    " discounting=0.99 min_replay_size=10000 max_replay_size=1000000 reward_scaling=1 tau=0.005"
+    " num_eval_envs=16 deterministic_eval=True num_evals=21"
+)
+TASKS.update(
+    {
+        f"{env}_sac": {
+            "label": f"{env} (Brax: its generalized {env})",
+            "algo": "sac",
+            "target": target,
+            "fastrl": [f"env={env}", "algo=sac", "train.updates_per_chunk=800"],  # eval every 51,200 steps
+            "fastrl_steps": 1_024_000,
+            "brax": f"{_SAC_BRAX} --env {env}".split(),
+            "brax_steps": 1_024_000,
+        }
+        for env, target in (("hopper", 1000.0), ("halfcheetah", 2000.0))
+    }
+)
+TASKS["halfcheetah_es"] = {
+    "label": "halfcheetah (Brax: its generalized halfcheetah)",
+    "algo": "es",
+    "target": 1000.0,
+    "fastrl": ["env=halfcheetah", "algo=es"],  # 5 updates (640k env steps) per evaluation
+    "fastrl_steps": 20_480_000,
+    "brax": (
+        "--algo es --env halfcheetah --hidden 32 32 --set population_size=64 perturbation_std=0.05"
+        " learning_rate=0.02 fitness_shaping=CENTERED_RANK num_eval_envs=16 deterministic_eval=True"
+        " num_evals=33"
+    ).split(),
+    "brax_steps": 20_480_000,
+}
+TASKS["reacher_apg"] = {
+    "label": "reacher (Brax: its generalized reacher, 50-step episodes)",
+    "algo": "apg",
+    "target": -10.0,
+    "fastrl": ["env=reacher", "algo=apg"],  # 10 updates (64k env steps) per evaluation
+    "fastrl_steps": 2_048_000,
+    "brax": (
+        "--algo apg --env reacher --hidden 64 64 --set num_envs=128 horizon_length=50 learning_rate=3e-3"
+        " episode_length=50 num_eval_envs=32 deterministic_eval=True num_evals=33 policy_updates=320"
+    ).split(),
+    # Brax's APG is budgeted in policy updates (policy_updates x num_envs x horizon env steps).
+    "brax_steps": None,
+}
 
 
-def run_brax(task: dict, seed: int, steps: int) -> list[tuple[float, int, float]]:
-    cmd = [str(PEERS), str(ROOT / "experiments/peers/brax_ppo.py"), *task["brax"], "--seed", str(seed),
-           "--num-timesteps", str(steps)]  # fmt: skip
+def run_brax(
+    task: dict, seed: int, steps: int | None, stop_at: float | None
+) -> list[tuple[float, int, float]]:
+    algo = task.get("algo", "ppo")
+    if algo == "ppo":
+        cmd = [
+            str(PEERS),
+            str(ROOT / "experiments/peers/brax_ppo.py"),
+            *task["brax"],
+            "--num-timesteps",
+            str(steps),
+        ]
+    else:
+        cmd = [str(PEERS), str(ROOT / "experiments/peers/brax_train.py"), *task["brax"]]
+        if steps is not None:
+            cmd += ["--set", f"num_timesteps={steps}"]
+    cmd += ["--seed", str(seed)]
+    if stop_at is not None:
+        cmd += ["--stop-at-return", str(stop_at)]
     launched = time.time()
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=7200)
     if out.returncode:
-        raise RuntimeError(f"Brax's PPO failed ({out.returncode}):\n{out.stderr[-3000:]}")
+        raise RuntimeError(f"Brax's {algo.upper()} failed ({out.returncode}):\n{out.stderr[-3000:]}")
     curve = []
     for line in out.stdout.splitlines():
         rec = json.loads(line)
@@ -86,10 +166,14 @@ def run_brax(task: dict, seed: int, steps: int) -> list[tuple[float, int, float]
     return curve
 
 
-def run_fastrl(task: dict, seed: int, steps: int, quick: bool) -> list[tuple[float, int, float]]:
+def run_fastrl(
+    task: dict, seed: int, steps: int, quick: bool, stop_at: float | None
+) -> list[tuple[float, int, float]]:
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "fastrl.train", *task["fastrl"], f"seed={seed}", f"run_dir={tmp}/run",
                f"train.total_env_steps={steps}", "logger=quiet"]  # fmt: skip
+        if stop_at is not None:
+            cmd.append(f"train.stop_at_return={stop_at}")
         if quick:
             cmd += ["debug=quick"]
         launched = time.time()
@@ -149,7 +233,8 @@ def write(result: dict, out: pathlib.Path, stem: str) -> None:
     result["summary"] = summarize(result["runs"])
     (out / f"{stem}.json").write_text(json.dumps(result, indent=1))
     target = result["target"]
-    lines = [f"# Time to eval return {target:g}: {result['task']}, fastrl PPO vs Brax PPO", "",
+    algo = TASKS.get(result["task"], {}).get("algo", "ppo").upper()
+    lines = [f"# Time to eval return {target:g}: {result['task']}, fastrl {algo} vs Brax {algo}", "",
              f"Machine: {result.get('machine', '?')}. Command: `{result['command']}`.", "",
              "| learner | seeds | reached target | median s to target | median final return | median run s |",
              "| --- | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
@@ -183,7 +268,8 @@ def _plot(runs, path, target, task):
             label = f"{r['learner']} seed {r['seed']}"
             ax.plot(t, ret, color=colors[r["learner"]], alpha=0.8, marker=".", label=label)
     ax.axhline(target, color="gray", ls="--", lw=1)
-    ax.set_title(f"PPO on {TASKS.get(task, {}).get('label', task)}", fontsize=10)
+    algo = TASKS.get(task, {}).get("algo", "ppo").upper()
+    ax.set_title(f"{algo} on {TASKS.get(task, {}).get('label', task)}", fontsize=10)
     ax.set_xlabel("wall-clock seconds (start-up and compile included)")
     ax.set_ylabel("eval episode return")
     ax.legend(fontsize=7)
@@ -201,6 +287,9 @@ def main(argv=None) -> None:
     parser.add_argument("--fastrl-steps", type=int, default=None, help="default: the task's")
     parser.add_argument("--quick", action="store_true", help="one seed, fastrl only, tiny budget")
     parser.add_argument("--skip-brax", action="store_true")
+    parser.add_argument(
+        "--stop-at-target", action="store_true", help="end each run at its first evaluation >= the target"
+    )  # fmt: skip
     parser.add_argument(
         "--brax-from", type=pathlib.Path,
         help="reuse the Brax runs of a saved result JSON instead of running Brax again (the table says so)",
@@ -221,12 +310,14 @@ def main(argv=None) -> None:
             file=sys.stderr,
         )
     runs, note = reused_brax_runs(args.brax_from, args.task, seeds) if args.brax_from else ([], None)
+    stop_at = task["target"] if args.stop_at_target else None
     for seed in seeds:
         if not skip_brax:
-            curve = run_brax(task, seed, args.brax_steps or task["brax_steps"])
+            curve = run_brax(task, seed, args.brax_steps or task["brax_steps"], stop_at)
             runs.append({"learner": "brax", "seed": seed, "curve": curve})
         steps = 1024 if args.quick else (args.fastrl_steps or task["fastrl_steps"])
-        runs.append({"learner": "fastrl", "seed": seed, "curve": run_fastrl(task, seed, steps, args.quick)})
+        curve = run_fastrl(task, seed, steps, args.quick, stop_at)
+        runs.append({"learner": "fastrl", "seed": seed, "curve": curve})
     for r in runs:
         r["time_to_target"] = time_to(r["curve"], task["target"])
     command = "python experiments/time_to_return.py " + " ".join(sys.argv[1:] if argv is None else argv)

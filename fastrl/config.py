@@ -87,6 +87,8 @@ class TrainConfig:
       eval_every          evaluate every this many chunks (0: only at the end)
       eval_envs           episodes per evaluation (one per env, deterministic policy)
       stop_after_chunks   stop this invocation after this many chunks (resume continues it)
+      stop_at_return      stop the run once every agent's deterministic evaluation return has
+                          reached this (status "reached"; None: train the whole budget)
       num_seeds           independent agents (seeds seed, seed+1, ...) trained in ONE program
       vmap_sweep          {float algo option: [values]}: every value x every seed, in one program
                           (see fastrl/scale.py); total_env_steps counts per agent
@@ -97,6 +99,7 @@ class TrainConfig:
     eval_every: int = 1
     eval_envs: int = 128
     stop_after_chunks: int | None = None
+    stop_at_return: float | None = None
     num_seeds: int = 1
     vmap_sweep: dict | None = None
 
@@ -109,6 +112,11 @@ class TrainConfig:
             raise ConfigError("train.eval_every must be >= 0")
         if self.num_seeds < 1:
             raise ConfigError(f"train.num_seeds={self.num_seeds} must be >= 1")
+        if self.stop_at_return is not None and self.eval_every == 0:
+            raise ConfigError(
+                f"train.stop_at_return={self.stop_at_return} is checked at evaluations, but "
+                "train.eval_every=0 evaluates only at the end; set train.eval_every >= 1"
+            )
 
 
 @dataclasses.dataclass(frozen=True)

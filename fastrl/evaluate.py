@@ -77,9 +77,11 @@ def main(argv=None) -> int:
     parser.add_argument("--html", metavar="OUT.html", help="write a 3D viewer page of the first episode")
     parser.add_argument("--video", metavar="OUT.gif", help="render the first episode (.gif or .mp4)")
     parser.add_argument("--steps", type=int, help="show at most this many steps of it (default: all)")
+    parser.add_argument("--agent", help="of a batch run (train.num_seeds > 1): the agent's index or tag")
     args = parser.parse_args(argv)
+    agent = int(args.agent) if args.agent is not None and args.agent.isdigit() else args.agent
     try:
-        rc, env, learner, state = load_run(args.run_dir)
+        rc, env, learner, state = load_run(args.run_dir, agent=agent)
     except CheckpointError as e:
         print(f"[fastrl] error: {e}", file=sys.stderr)
         return 2

@@ -2,20 +2,27 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import jax
 
-from fastrl import agents
+from fastrl import agents, scale
 from fastrl.checkpoint import Checkpointer, CheckpointError
 from fastrl.config import RunConfig
 from fastrl.runner import CHECKPOINT_DIR
 
 
-def load_run(run_dir: str | Path, step: int | None = None):
-    """(RunConfig, env, learner, state) of a run's checkpoint (default: the latest)."""
+def load_run(run_dir: str | Path, step: int | None = None, agent: int | str | None = None):
+    """(RunConfig, env, learner, state) of a run's checkpoint (default: the latest).
+
+    A batch run (``train.num_seeds > 1`` or a ``train.vmap_sweep``) holds several agents in one
+    checkpoint: pick one with ``agent`` (its index or tag, e.g. ``0`` or ``"000-seed0"``), or pass
+    the agent's own folder ``RUN_DIR/agents/<tag>``. The returned config and state are that
+    agent's, as if it had been trained alone.
+    """
     run_dir = Path(run_dir)
+    if not (run_dir / CHECKPOINT_DIR).is_dir() and run_dir.parent.name == "agents":
+        run_dir, agent = run_dir.parent.parent, run_dir.name if agent is None else agent
     if not (run_dir / CHECKPOINT_DIR).is_dir():
         raise CheckpointError(f"{run_dir} is not a fastrl run folder (no {CHECKPOINT_DIR}/ inside)")
     ckpt = Checkpointer(run_dir / CHECKPOINT_DIR)
@@ -24,26 +31,48 @@ def load_run(run_dir: str | Path, step: int | None = None):
         config = meta["config"]
         rc = RunConfig.from_dict(config)
         env = rc.env.make()
-        learner = agents.make_learner(rc.algo_name, rc.algo, env, rc.network, 1)
-        abstract = jax.eval_shape(learner.init, jax.random.PRNGKey(rc.seed))
-        state, _ = ckpt.restore(abstract, config, step)
+        specs = scale.expand(rc)
+        if len(specs) == 1:
+            if agent not in (None, 0, specs[0].tag):
+                raise CheckpointError(f"{run_dir} holds one agent; agent={agent!r} does not name it")
+            learner = agents.make_learner(rc.algo_name, rc.algo, env, rc.network, 1)
+            abstract = jax.eval_shape(learner.init, jax.random.PRNGKey(rc.seed))
+            state, _ = ckpt.restore(abstract, config, step)
+            return rc, env, learner, state
+        tags = [spec.tag for spec in specs]
+        if agent is None:
+            raise CheckpointError(
+                f"{run_dir} holds a batch of {len(specs)} agents ({', '.join(tags)}); choose one: "
+                f"load_policy(run_dir, agent=0), python -m fastrl.evaluate RUN_DIR --agent 0, or the "
+                f"agent's folder {run_dir / 'agents' / tags[0]}"
+            )
+        index = tags.index(agent) if agent in tags else agent
+        if not isinstance(index, int) or not 0 <= index < len(specs):
+            raise CheckpointError(
+                f"agent={agent!r} is not one of {run_dir}'s agents: 0..{len(specs) - 1} or {tags}"
+            )
+        batch = scale.batch_learner(rc, specs, env, 1)
+        state, _ = ckpt.restore(jax.eval_shape(batch.init, scale.init_keys(specs)), config, step)
     finally:
         ckpt.close()
-    return rc, env, learner, state
+    one = specs[index].config
+    learner = agents.make_learner(one.algo_name, one.algo, env, one.network, 1)
+    return one, env, learner, jax.tree.map(lambda x: x[index], state)
 
 
-def load_policy(run_dir: str | Path, step: int | None = None):
-    """A jittable deterministic ``policy(obs) -> action`` from a run's latest checkpoint.
+def load_policy(run_dir: str | Path, step: int | None = None, agent: int | str | None = None):
+    """A jittable deterministic ``policy(obs) -> action`` from a run's latest checkpoint (of a
+    batch run: one agent's, chosen as ``load_run`` describes).
 
     The observation normaliser is folded in, so the function takes raw observations of the
     env's layout (see the env's docstring) and returns actions within its action bounds. It
     works for a single (obs_size,) observation or a batch (..., obs_size).
     """
-    _, _, learner, state = load_run(run_dir, step)
+    rc, _, learner, state = load_run(run_dir, step, agent)
     params = learner.policy_params(state)
 
     def policy(obs: jax.Array) -> jax.Array:
         return learner.act(params, obs)
 
-    policy.run_config = json.loads((Path(run_dir) / "config.json").read_text())
+    policy.run_config = rc.to_dict()
     return policy

@@ -172,7 +172,10 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
       on_chunk: optional callback ``(chunk, row)`` after every chunk (tests use it); for a batch
         ``row`` is the mean over agents and ``row["agents"]`` holds each agent's row.
     Returns:
-      A summary: status ("done", "stopped", "diverged"), chunks, env_steps, final metrics.
+      A summary: status ("done", "stopped", "diverged", or "reached" when every agent's
+      evaluation return reached ``train.stop_at_return``), chunks, env_steps, final metrics; with
+      ``stop_at_return`` also ``reached``: per agent the chunk, env steps, training seconds and
+      return of its first evaluation at or above it (None where it never got there).
     """
     run_dir = Path(run_dir).absolute()
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -204,10 +207,13 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
     state = jit_init(init_key)
     chunk, wall = 0, 0.0
     watch = CollapseWatch(n_agents)
+    # per agent: where its evaluation return first reached train.stop_at_return (None: not yet)
+    reached: list[dict | None] = [None] * n_agents
     if resume:
         state, meta = ckpt.restore(state, config)
         chunk, wall = int(meta["chunk"]), float(meta["wall_s"])
         watch = CollapseWatch(n_agents, history=meta.get("eval_history"))
+        reached = list(meta.get("reached") or reached)
         print(f"[fastrl] resumed {run_dir} at chunk {chunk} ({int(meta['env_steps']):,d} env steps)")
     elif ckpt.latest_step() is not None:
         raise CheckpointError(
@@ -252,7 +258,7 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
         outs = [_Outputs(run_dir, cfg, chunk, _env_steps(state))]
     diverged = [False] * n_agents
     status, row, start_chunk = "done", {}, chunk
-    save = lambda: ckpt.save(chunk, state, _meta(config, chunk, state, wall, watch))  # noqa: E731
+    save = lambda: ckpt.save(chunk, state, _meta(config, chunk, state, wall, watch, reached))  # noqa: E731
     try:
         with _StopFlag() as stop:
             while chunk < n_chunks:
@@ -297,6 +303,10 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                                   f"{r['eval/episode_return']:.4g}, best {watch.best[i]:.4g}, first "
                                   f"{watch.first[i]:.4g}", file=sys.stderr)  # fmt: skip
                         r["train/collapsed"] = float(watch.collapsed[i])
+                        target = cfg.train.stop_at_return
+                        if target is not None and reached[i] is None and r["eval/episode_return"] >= target:
+                            reached[i] = {"chunk": chunk, "env_steps": _env_steps(state, i), "wall_s": wall,
+                                          "eval_return": r["eval/episode_return"]}  # fmt: skip
                 if write_viewer and (chunk == n_chunks or chunk % cfg.logger.viewer_every == 0):
                     params = scale.to_host(learner.policy_params(state))  # every process gathers
                     if jax.process_index() == 0:
@@ -313,12 +323,20 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                     print(_progress(row, n_chunks * k * steps_per_update, wall), flush=True)
                 if on_chunk is not None:
                     on_chunk(chunk, row)
+                all_reached = cfg.train.stop_at_return is not None and all(x is not None for x in reached)
                 stopping = stop.set or (
                     cfg.train.stop_after_chunks is not None
                     and chunk - start_chunk >= cfg.train.stop_after_chunks
                 )
-                if chunk == n_chunks or stopping or chunk % cfg.checkpoint.every == 0:
+                if chunk == n_chunks or stopping or all_reached or chunk % cfg.checkpoint.every == 0:
                     save()
+                if all_reached:
+                    status = "reached"
+                    who = "every agent's" if n_agents > 1 else "the"
+                    print(f"[fastrl] {who} evaluation return reached train.stop_at_return="
+                          f"{cfg.train.stop_at_return:g} by chunk {chunk} ({wall:.0f}s of training); "
+                          "stopping", flush=True)  # fmt: skip
+                    break
                 if stopping:
                     status = "stopped"
                     break
@@ -331,6 +349,8 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                "wall_s": wall, "last": row, "run_dir": str(run_dir)}  # fmt: skip
     summary["collapsed"] = watch.collapsed if n_agents > 1 else watch.collapsed[0]
     summary["best_eval_return"] = watch.best if n_agents > 1 else watch.best[0]
+    if cfg.train.stop_at_return is not None:
+        summary["reached"] = reached if n_agents > 1 else reached[0]
     if n_agents > 1:
         summary["agents"] = [s.tag for s in specs]
         summary["diverged_agents"] = [s.tag for s, d in zip(specs, diverged, strict=True) if d]
@@ -397,6 +417,6 @@ def _mean_row(rows: list[dict], n_agents: int) -> dict:
     return out
 
 
-def _meta(config: dict, chunk: int, state, wall: float, watch: CollapseWatch) -> dict:
+def _meta(config: dict, chunk: int, state, wall: float, watch: CollapseWatch, reached: list) -> dict:
     return {"config": config, "chunk": chunk, "env_steps": _env_steps(state), "wall_s": wall,
-            "eval_history": watch.history()}  # fmt: skip
+            "eval_history": watch.history(), "reached": reached}  # fmt: skip

@@ -71,6 +71,10 @@ ANT = {
 }
 
 
+class _TargetReached(Exception):
+    pass
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -82,6 +86,7 @@ def main() -> None:
     parser.add_argument("--policy-hidden", type=int, nargs="+", default=[32] * 4)
     parser.add_argument("--value-hidden", type=int, nargs="+", default=[256] * 5)
     parser.add_argument("--deterministic-eval", action="store_true")
+    parser.add_argument("--stop-at-return", type=float, default=None, help="stop at the first eval >= this")
     args = parser.parse_args()
 
     out = sys.stdout
@@ -126,11 +131,17 @@ def main() -> None:
                 "training_sps": float(metrics["training/sps"]) if "training/sps" in metrics else None,
             }
         )
+        if args.stop_at_return is not None and float(metrics["eval/episode_reward"]) >= args.stop_at_return:
+            raise _TargetReached
 
     factory = functools.partial(ppo_networks.make_ppo_networks, **network)
+    status = "done"
     with contextlib.redirect_stdout(sys.stderr):
-        ppo.train(environment=env, progress_fn=progress_fn, network_factory=factory, **config)
-    emit({"event": "done", "elapsed_s": time.perf_counter() - t0})
+        try:
+            ppo.train(environment=env, progress_fn=progress_fn, network_factory=factory, **config)
+        except _TargetReached:
+            status = "reached"
+    emit({"event": "done", "status": status, "elapsed_s": time.perf_counter() - t0})
 
 
 if __name__ == "__main__":

@@ -71,6 +71,8 @@ def test_config_errors_name_the_key_before_compiling():
         typed(["network.activation=gelu2"])
     with pytest.raises(MissingConfigException, match="antt"):
         typed(["env=antt"])
+    with pytest.raises(ConfigError, match="stop_at_return=950.0 is checked at evaluations.*eval_every >= 1"):
+        typed(["train.stop_at_return=950", "train.eval_every=0"])
 
 
 def test_env_options_reach_the_env_and_bad_ones_are_named():
@@ -180,15 +182,27 @@ def test_collapse_watch_flags_a_return_that_falls_back():
     assert again.update(0, 40) is True and again.best[0] == 100
 
 
-def test_ppo_improves_inverted_pendulum_within_a_minute(tmp_path):
-    out = run(
-        compose_cfg(
-            ["env=inverted_pendulum", "logger=quiet", f"run_dir={tmp_path}", "train.total_env_steps=40000"]
-        )
-    )
-    assert out["status"] == "done"
-    assert out["wall_s"] < 60
-    assert out["last"]["eval/episode_return"] > 100  # a random policy survives ~5-20 steps
+def test_ppo_improves_inverted_pendulum_within_a_minute(tmp_path, capsys):
+    overrides = ["env=inverted_pendulum", "logger=quiet", "train.total_env_steps=40000"]
+    full = run(compose_cfg([*overrides, f"run_dir={tmp_path}/full"]))
+    assert full["status"] == "done"
+    assert full["wall_s"] < 60
+    assert full["last"]["eval/episode_return"] > 100  # a random policy survives ~5-20 steps
+    # The same run told to stop at a return of 100 stops at its first evaluation that gets there,
+    # saves it, and says where; it resumes like any run.
+    first = next(row["chunk"] for row in _csv_rows(tmp_path / "full") if row["eval/episode_return"] >= 100)
+    out = run(compose_cfg([*overrides, f"run_dir={tmp_path}/stop", "train.stop_at_return=100"]))
+    assert out["status"] == "reached" and out["chunks"] == first < full["chunks"]
+    assert out["reached"]["chunk"] == first and out["reached"]["eval_return"] >= 100
+    assert "evaluation return reached train.stop_at_return=100 by chunk" in capsys.readouterr().out
+    assert sorted(int(p.name) for p in (tmp_path / "stop/checkpoints").iterdir())[-1] == first
+
+
+def _csv_rows(run_dir):
+    import csv
+
+    with open(run_dir / "metrics.csv") as f:
+        return [{k: float(v) for k, v in row.items() if v} for row in csv.DictReader(f)]
 
 
 def test_load_policy_and_evaluate_cli(tmp_path, capsys):

@@ -101,6 +101,22 @@ def test_batch_run_logs_each_agent_and_resumes_bit_exactly(tmp_path):
         b = report.read_metrics(tmp_path / "split" / "agents" / d.name / "metrics.csv")
         for key in ("loss/policy_loss", "loss/value_loss", "eval/episode_return"):
             np.testing.assert_array_equal(a[key], b[key])
+    # One agent's policy out of the batch checkpoint: by index, by tag, or by its own folder.
+    import fastrl
+    from fastrl import evaluate
+
+    with pytest.raises(CheckpointError, match="batch of 4 agents.*agent=0"):
+        fastrl.load_policy(tmp_path / "full")
+    with pytest.raises(CheckpointError, match="agent=7 is not one of"):
+        fastrl.load_policy(tmp_path / "full", agent=7)
+    obs = jax.random.normal(jax.random.PRNGKey(0), (5, 4))
+    acts = [np.asarray(fastrl.load_policy(tmp_path / "full", agent=i)(obs)) for i in range(4)]
+    np.testing.assert_array_equal(acts[1], fastrl.load_policy(agent_dirs[1])(obs))
+    by_tag = fastrl.load_policy(tmp_path / "full", agent=full["agents"][2])
+    np.testing.assert_array_equal(acts[2], by_tag(obs))
+    assert not np.array_equal(acts[0], acts[1])  # seeds 0 and 1: different networks
+    assert fastrl.load_policy(agent_dirs[3]).run_config["algo"]["entropy_cost"] == 0.01
+    assert evaluate.main([str(tmp_path / "full"), "--agent", "1", "--episodes", "2"]) == 0
     assert report.main([str(tmp_path / "full")]) == 0
     table = (tmp_path / "full" / "report.md").read_text()
     assert "algo.entropy_cost=0.0" in table and "algo.entropy_cost=0.01" in table
