@@ -95,6 +95,34 @@ def _decay_gradient(x, factor: float):
     return jax.tree.map(decay, x)
 
 
+def make_window(config: APGConfig, env_step, policy_net, dist, norm):
+    """``window(params, stats, env_state, key) -> (-return, (last_state, (obs, done, ep_return)))``.
+
+    The discounted return of ``config.horizon`` steps from ``env_state`` (which carries no
+    gradient), averaged over the batch and negated. The gradient flows through the whole closed
+    loop: each action depends on the parameters directly *and* through the state the earlier
+    actions led to (observation -> normaliser -> policy), which is what lets the policy learn
+    feedback (e.g. to pull a drifting cart back); only the normaliser's statistics are constants.
+    """
+
+    def window(params, stats, env_state, key):
+        def one(carry, k):
+            s, ret, disc = carry
+            raw = dist.mode_raw(policy_net.apply(params, norm(stats, s.obs)))
+            raw = raw + config.exploration_noise * jax.random.normal(k, raw.shape)
+            nxt = env_step(s, dist.postprocess(raw))
+            ret = ret + disc * nxt.reward
+            disc = disc * config.gamma * (1.0 - nxt.done.astype(ret.dtype)) + nxt.done.astype(ret.dtype)
+            return (_decay_gradient(nxt, config.grad_decay), ret, disc), (s.obs, nxt.done, nxt.episode_return)
+
+        ones = jnp.ones(config.num_envs)
+        keys = jax.random.split(key, config.horizon)
+        (last, ret, _), aux = jax.lax.scan(one, (env_state, 0.0 * ones, ones), keys)
+        return -jnp.mean(ret), (last, aux)
+
+    return window
+
+
 def make_apg(config: APGConfig, env: Env, network: NetworkConfig, total_updates: int = 1) -> Learner:
     """Builds APG for ``env``; raises ``UnsuitableEnvError`` for envs without smooth gradients."""
     del total_updates
@@ -124,20 +152,7 @@ def make_apg(config: APGConfig, env: Env, network: NetworkConfig, total_updates:
             env_steps=zero, updates=zero, skipped=zero,
         )  # fmt: skip
 
-    def window(params, stats, env_state, key):
-        def one(carry, k):
-            s, ret, disc = carry
-            raw = dist.mode_raw(policy_net.apply(params, norm(stats, jax.lax.stop_gradient(s.obs))))
-            raw = raw + config.exploration_noise * jax.random.normal(k, raw.shape)
-            nxt = env_step(s, dist.postprocess(raw))
-            ret = ret + disc * nxt.reward
-            disc = disc * config.gamma * (1.0 - nxt.done.astype(ret.dtype)) + nxt.done.astype(ret.dtype)
-            return (_decay_gradient(nxt, config.grad_decay), ret, disc), (s.obs, nxt.done, nxt.episode_return)
-
-        ones = jnp.ones(config.num_envs)
-        keys = jax.random.split(key, config.horizon)
-        (last, ret, _), aux = jax.lax.scan(one, (env_state, 0.0 * ones, ones), keys)
-        return -jnp.mean(ret), (last, aux)
+    window = make_window(config, env_step, policy_net, dist, norm)
 
     def update(state: APGState) -> tuple[APGState, dict]:
         rng, key = jax.random.split(state.rng)

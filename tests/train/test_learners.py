@@ -74,6 +74,39 @@ def test_apg_gradient_is_finite_and_matches_finite_differences():
         np.testing.assert_allclose(grad, fd, rtol=1e-4, atol=1e-7)
 
 
+def test_apg_learner_gradient_is_the_closed_loop_gradient():
+    """The learner's own window loss: its gradient must match finite differences, which see every
+    path from the weights to the return, including through the states earlier actions led to
+    (a gradient that treats observations as constants cannot learn feedback and fails this)."""
+    from jax.flatten_util import ravel_pytree
+
+    from fastrl.agents import apg
+    from fastrl.agents.base import observation_normalizer
+    from fastrl.agents.networks import MLP, TanhGaussian
+
+    with jax.enable_x64(True):
+        env = envs.make("inverted_pendulum", reward_weights={"upright": 1.0, "centered": 0.1})
+        config = agents.APGConfig(num_envs=2, horizon=12)
+        low, high = (jnp.asarray(b) for b in env.action_bounds)
+        net = MLP([6], 2 * env.action_size, "tanh", final_scale=1.0)
+        window = apg.make_window(
+            config, jax.vmap(env.step), net, TanhGaussian(low, high), observation_normalizer(False)
+        )
+        params = jax.tree.map(
+            lambda x: x.astype(jnp.float64), net.init(jax.random.PRNGKey(1), jnp.zeros((1, 4)))
+        )
+        start = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+        flat, unravel = ravel_pytree(params)
+        loss = jax.jit(lambda x: window(unravel(x), None, start, jax.random.PRNGKey(2))[0])
+        grad = jax.grad(loss)(flat)
+        assert np.all(np.isfinite(grad))
+        rng, h = np.random.default_rng(0), 1e-6
+        for _ in range(3):
+            v = rng.normal(size=flat.shape)
+            fd = (loss(flat + h * v) - loss(flat - h * v)) / (2 * h)
+            np.testing.assert_allclose(float(grad @ v), float(fd), rtol=1e-5)
+
+
 def test_apg_refuses_envs_with_useless_gradients():
     env = envs.make("hopper")
     with pytest.raises(agents.UnsuitableEnvError, match="hopper.*algo=ppo.*allow_unsuitable"):
