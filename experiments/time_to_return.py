@@ -136,17 +136,14 @@ TASKS["reacher_apg"] = {
 
 
 def run_brax(
-    task: dict, seed: int, steps: int | None, stop_at: float | None
-) -> list[tuple[float, int, float]]:
+    task: dict, seed: int, steps: int | None, stop_at: float | None, time_limit: float | None = None
+) -> tuple[list[tuple[float, int, float]], bool]:
+    """Brax's learning curve as (seconds since launch, env steps, eval return), and whether the
+    run was cut at ``time_limit`` seconds (its curve up to then is kept)."""
     algo = task.get("algo", "ppo")
     if algo == "ppo":
-        cmd = [
-            str(PEERS),
-            str(ROOT / "experiments/peers/brax_ppo.py"),
-            *task["brax"],
-            "--num-timesteps",
-            str(steps),
-        ]
+        script = str(ROOT / "experiments/peers/brax_ppo.py")
+        cmd = [str(PEERS), script, *task["brax"], "--num-timesteps", str(steps)]
     else:
         cmd = [str(PEERS), str(ROOT / "experiments/peers/brax_train.py"), *task["brax"]]
         if steps is not None:
@@ -155,15 +152,20 @@ def run_brax(
     if stop_at is not None:
         cmd += ["--stop-at-return", str(stop_at)]
     launched = time.time()
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=7200)
-    if out.returncode:
-        raise RuntimeError(f"Brax's {algo.upper()} failed ({out.returncode}):\n{out.stderr[-3000:]}")
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=time_limit or 7200)
+    except subprocess.TimeoutExpired as e:  # its output so far arrives as bytes
+        stdout, cut = (e.stdout or b"").decode(), True
+    else:
+        if out.returncode:
+            raise RuntimeError(f"Brax's {algo.upper()} failed ({out.returncode}):\n{out.stderr[-3000:]}")
+        stdout, cut = out.stdout, False
     curve = []
-    for line in out.stdout.splitlines():
+    for line in stdout.splitlines():
         rec = json.loads(line)
         if rec.get("event") == "eval":
             curve.append((rec["time_unix"] - launched, rec["env_steps"], rec["eval_return"]))
-    return curve
+    return curve, cut
 
 
 def run_fastrl(
@@ -248,6 +250,12 @@ def write(result: dict, out: pathlib.Path, stem: str) -> None:
     b, f = result["summary"]["brax"]["median_s"], result["summary"]["fastrl"]["median_s"]
     if b and f:
         lines += ["", f"fastrl takes {f / b:.2f}x Brax's wall time to reach {target:g} (median of seeds)."]
+    cut = [f"{r['learner']} seed {r['seed']}" for r in result["runs"] if r.get("cut_at_time_limit")]
+    if cut:
+        lines += [
+            "",
+            f"Cut at the time limit (`--brax-time-limit`), curve kept up to then: {', '.join(cut)}.",
+        ]
     if result.get("note"):
         lines += ["", result["note"]]
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
@@ -287,6 +295,7 @@ def main(argv=None) -> None:
     parser.add_argument("--fastrl-steps", type=int, default=None, help="default: the task's")
     parser.add_argument("--quick", action="store_true", help="one seed, fastrl only, tiny budget")
     parser.add_argument("--skip-brax", action="store_true")
+    parser.add_argument("--brax-time-limit", type=float, help="end each Brax run after this many seconds")
     parser.add_argument(
         "--stop-at-target", action="store_true", help="end each run at its first evaluation >= the target"
     )  # fmt: skip
@@ -313,8 +322,9 @@ def main(argv=None) -> None:
     stop_at = task["target"] if args.stop_at_target else None
     for seed in seeds:
         if not skip_brax:
-            curve = run_brax(task, seed, args.brax_steps or task["brax_steps"], stop_at)
-            runs.append({"learner": "brax", "seed": seed, "curve": curve})
+            steps = args.brax_steps or task["brax_steps"]
+            curve, cut = run_brax(task, seed, steps, stop_at, args.brax_time_limit)
+            runs.append({"learner": "brax", "seed": seed, "curve": curve, "cut_at_time_limit": cut})
         steps = 1024 if args.quick else (args.fastrl_steps or task["fastrl_steps"])
         curve = run_fastrl(task, seed, steps, args.quick, stop_at)
         runs.append({"learner": "fastrl", "seed": seed, "curve": curve})

@@ -15,8 +15,8 @@ evaluation whose return is at least X (``progress_fn`` raises; Brax has no such 
 
 Output, like ``brax_ppo.py``: one ``{"event": "eval", "elapsed_s", "time_unix", "env_steps",
 "eval_return", ...}`` line per evaluation, then ``{"event": "done", ...}``; everything else goes to
-stderr. For APG Brax counts ``env_steps`` as it reports them (``num_steps`` of its progress
-callback).
+stderr. Brax's APG reports its epoch index to ``progress_fn``; this script converts it to env
+steps (epochs x updates per epoch x ``num_envs`` x ``horizon_length``).
 """
 
 from __future__ import annotations
@@ -96,7 +96,14 @@ def main() -> None:
 
     t0 = time.perf_counter()
 
+    steps_per_call = 1
+    if args.algo == "apg":  # Brax's APG reports its epoch index, not env steps
+        epochs = max(config.get("num_evals", 1) - 1, 1)
+        updates = round(config["policy_updates"] / epochs)
+        steps_per_call = updates * config.get("num_envs", 1) * config.get("horizon_length", 32)
+
     def progress_fn(num_steps: int, metrics: dict) -> None:
+        num_steps = int(num_steps) * steps_per_call
         ret = float(metrics["eval/episode_reward"])
         emit({"event": "eval", "elapsed_s": time.perf_counter() - t0, "time_unix": time.time(),
               "env_steps": int(num_steps), "eval_return": ret,
