@@ -62,6 +62,23 @@ def install_device_put_replicated_shim() -> bool:
     return True
 
 
+class TargetReached(Exception):
+    """Raised by a training ``progress_fn`` to end a Brax run at a target return."""
+
+
+def train_until_target(train, emit, t0: float, **kwargs) -> None:
+    """Calls Brax's ``train(**kwargs)`` with its prints sent to stderr; a ``TargetReached``
+    raised by its ``progress_fn`` ends the run early. Then emits the final JSON line,
+    ``{"event": "done", "status": "done" | "reached", "elapsed_s": seconds since t0}``."""
+    status = "done"
+    with contextlib.redirect_stdout(sys.stderr):
+        try:
+            train(**kwargs)
+        except TargetReached:
+            status = "reached"
+    emit({"event": "done", "status": status, "elapsed_s": time.perf_counter() - t0})
+
+
 SHIMMED = install_device_put_replicated_shim()
 with contextlib.redirect_stdout(sys.stderr):
     import brax

@@ -35,7 +35,7 @@ import sys
 import time
 
 # Installs the jax.device_put_replicated shim (Brax 0.14 + new JAX) before brax is imported.
-from brax_ant import SHIMMED, install_device_put_replicated_shim
+from brax_ant import SHIMMED, TargetReached, install_device_put_replicated_shim, train_until_target
 
 install_device_put_replicated_shim()
 with contextlib.redirect_stdout(sys.stderr):
@@ -69,10 +69,6 @@ ANT = {
     "seed": 1,
     "num_eval_envs": 128,  # ppo.train's default
 }
-
-
-class _TargetReached(Exception):
-    pass
 
 
 def main() -> None:
@@ -132,16 +128,12 @@ def main() -> None:
             }
         )
         if args.stop_at_return is not None and float(metrics["eval/episode_reward"]) >= args.stop_at_return:
-            raise _TargetReached
+            raise TargetReached
 
     factory = functools.partial(ppo_networks.make_ppo_networks, **network)
-    status = "done"
-    with contextlib.redirect_stdout(sys.stderr):
-        try:
-            ppo.train(environment=env, progress_fn=progress_fn, network_factory=factory, **config)
-        except _TargetReached:
-            status = "reached"
-    emit({"event": "done", "status": status, "elapsed_s": time.perf_counter() - t0})
+    train_until_target(
+        ppo.train, emit, t0, environment=env, progress_fn=progress_fn, network_factory=factory, **config
+    )
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ import sys
 import time
 
 # Installs the jax.device_put_replicated shim (Brax 0.14 + new JAX) before brax is imported.
-from brax_ant import SHIMMED, install_device_put_replicated_shim
+from brax_ant import SHIMMED, TargetReached, install_device_put_replicated_shim, train_until_target
 
 install_device_put_replicated_shim()
 with contextlib.redirect_stdout(sys.stderr):
@@ -40,10 +40,6 @@ with contextlib.redirect_stdout(sys.stderr):
     from brax import envs
 
 ALGOS = ("sac", "es", "apg")
-
-
-class _TargetReached(Exception):
-    pass
 
 
 def parse_sets(items: list[str]) -> dict:
@@ -109,16 +105,12 @@ def main() -> None:
               "env_steps": int(num_steps), "eval_return": ret,
               "eval_return_std": float(metrics.get("eval/episode_reward_std", float("nan")))})  # fmt: skip
         if args.stop_at_return is not None and ret >= args.stop_at_return:
-            raise _TargetReached
+            raise TargetReached
 
     factory = functools.partial(getattr(nets_mod, f"make_{args.algo}_networks"), **network)
-    status = "done"
-    with contextlib.redirect_stdout(sys.stderr):
-        try:
-            train_mod.train(environment=env, progress_fn=progress_fn, network_factory=factory, **config)
-        except _TargetReached:
-            status = "reached"
-    emit({"event": "done", "status": status, "elapsed_s": time.perf_counter() - t0})
+    train_until_target(
+        train_mod.train, emit, t0, environment=env, progress_fn=progress_fn, network_factory=factory, **config
+    )
 
 
 if __name__ == "__main__":
