@@ -39,6 +39,11 @@ MuJoCo's models converted by Brax), evaluating 16 episodes with the mean action 
 * ``halfcheetah_es`` (target 1000): 128 episodes of 1000 steps per update (Brax's
   ``population_size=64`` antithetic pairs), perturbation std 0.05, learning rate 0.02,
   centred-rank fitness, 2x32 policy, an evaluation every 640k env steps.
+* ``inverted_pendulum_apg`` (target 950): 64 envs, gradients over 32-step horizons, learning
+  rate 3e-3, 2x32 policy. fastrl's ``experiment/inverted_pendulum_apg`` adds smooth shaping terms
+  (upright, centred) to the reward it differentiates, since the 0/1 survival reward has no
+  gradient; Brax's inverted_pendulum rewards survival only (1 per step), so its APG gets a zero
+  gradient: this measures what each framework gives a user who asks for APG on the task.
 * ``reacher_apg`` (target -10): 128 envs, gradients over 50-step horizons, learning rate 3e-3,
   2x64 policy, on Gymnasium's 50-step reacher episodes (Brax's ``episode_length=50``).
 
@@ -119,6 +124,18 @@ TASKS["halfcheetah_es"] = {
         " num_evals=33"
     ).split(),
     "brax_steps": 20_480_000,
+}
+TASKS["inverted_pendulum_apg"] = {
+    "label": "inverted_pendulum (Brax: its generalized inverted_pendulum, survival reward only)",
+    "algo": "apg",
+    "target": 950.0,
+    "fastrl": ["env=inverted_pendulum", "algo=apg"],  # 20 updates (40,960 env steps) per evaluation
+    "fastrl_steps": 491_520,
+    "brax": (
+        "--algo apg --env inverted_pendulum --hidden 32 32 --set num_envs=64 horizon_length=32"
+        " learning_rate=3e-3 num_eval_envs=16 deterministic_eval=True num_evals=13 policy_updates=240"
+    ).split(),
+    "brax_steps": None,
 }
 TASKS["reacher_apg"] = {
     "label": "reacher (Brax: its generalized reacher, 50-step episodes)",

@@ -18,8 +18,9 @@ class NetworkConfig:
     """Sizes of the networks (Hydra group ``network``).
 
     Fields:
-      policy_hidden   hidden layer widths of the policy MLP
-      value_hidden    hidden layer widths of the value (or Q) MLP
+      policy_hidden   hidden layer widths of the policy MLP; [] makes the policy linear in the
+                      (normalised) observation, as in augmented random search
+      value_hidden    hidden layer widths of the value (or Q) MLP ([] likewise linear)
       activation      one of tanh, relu, swish, elu
     """
 
@@ -32,8 +33,8 @@ class NetworkConfig:
             raise ValueError(f"network.activation={self.activation!r}; choose one of {sorted(_ACTIVATIONS)}")
         for name in ("policy_hidden", "value_hidden"):
             sizes = tuple(getattr(self, name))
-            if not sizes or any(int(s) < 1 for s in sizes):
-                raise ValueError(f"network.{name}={list(sizes)} must be a non-empty list of positive widths")
+            if any(int(s) < 1 for s in sizes):
+                raise ValueError(f"network.{name}={list(sizes)} must be a list of positive widths ([]: linear)")
             object.__setattr__(self, name, tuple(int(s) for s in sizes))
 
 

@@ -1,4 +1,4 @@
-"""The squashed-Gaussian policy distribution: initial scale and the entropy estimates."""
+"""The policy networks: the squashed-Gaussian distribution (initial scale, entropy estimates) and widths."""
 
 import jax
 import jax.numpy as jnp
@@ -36,3 +36,21 @@ def test_init_std_sets_the_scale_at_a_zero_network_output_and_bad_values_are_ref
     assert float(std[0]) == pytest.approx(np.log(2.0) + 1e-3, rel=1e-6)
     with pytest.raises(ValueError, match="init_std"):
         TanhGaussian(-jnp.ones(1), jnp.ones(1), init_std=0.0)
+
+
+def test_empty_hidden_list_gives_a_linear_policy_and_bad_widths_are_refused():
+    from fastrl.agents.networks import MLP, NetworkConfig
+
+    assert NetworkConfig(policy_hidden=[]).policy_hidden == ()
+    with pytest.raises(ValueError, match=r"network.policy_hidden=\[32, 0\]"):
+        NetworkConfig(policy_hidden=[32, 0])
+    net = MLP(hidden=(), out=4)
+    x = jax.random.normal(jax.random.PRNGKey(1), (3, 8))
+    params = net.init(jax.random.PRNGKey(0), x)
+    assert jax.tree.reduce(lambda n, leaf: n + leaf.size, params, 0) == 8 * 4 + 4  # one Dense
+    # linear: f(a x + b y) - f(0) = a (f(x) - f(0)) + b (f(y) - f(0))
+    f = lambda v: net.apply(params, v)  # noqa: E731
+    zero = jnp.zeros((1, 8))
+    lhs = f(2.0 * x[:1] - 3.0 * x[1:2]) - f(zero)
+    rhs = 2.0 * (f(x[:1]) - f(zero)) - 3.0 * (f(x[1:2]) - f(zero))
+    np.testing.assert_allclose(lhs, rhs, rtol=1e-4, atol=1e-6)

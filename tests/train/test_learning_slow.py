@@ -4,7 +4,10 @@ Each case trains with the shipped ``experiment/<env>_<algo>`` settings (budget i
 seeds as one batch of agents in one program (``train.num_seeds``), and stops once every agent's
 deterministic evaluation return has reached the threshold (``train.stop_at_return``); it fails
 when the budget runs out first. Thresholds were fixed before running: inverted_pendulum 950 (of
-1000); halfcheetah 2000 (SAC, PPO) and 1000 (ES); hopper 1000; swimmer 100; reacher -10.
+1000); halfcheetah 2000 (SAC, PPO) and 1000 (ES); hopper 1000; swimmer 100; reacher -10, raised
+to -5 in session 10 (before that run) because a motionless arm scores -11.8. Swimmer's ES
+settings changed to a linear policy after the 2x32 MLP plateaued near 50 (conf/experiment/
+swimmer_es.yaml); the threshold did not change.
 """
 
 import pytest
@@ -20,7 +23,7 @@ CASES = [
     ("swimmer", "es", 100.0, 3),
     ("halfcheetah", "es", 1000.0, 3),
     ("inverted_pendulum", "apg", 950.0, 3),
-    ("reacher", "apg", -10.0, 3),
+    ("reacher", "apg", -5.0, 3),
 ]
 
 
