@@ -34,7 +34,7 @@ class NetworkConfig:
         for name in ("policy_hidden", "value_hidden"):
             sizes = tuple(getattr(self, name))
             if any(int(s) < 1 for s in sizes):
-                raise ValueError(f"network.{name}={list(sizes)} must be a list of positive widths ([]: linear)")
+                raise ValueError(f"network.{name}={list(sizes)} must be positive widths ([]: linear)")
             object.__setattr__(self, name, tuple(int(s) for s in sizes))
 
 

@@ -42,7 +42,7 @@ def test_empty_hidden_list_gives_a_linear_policy_and_bad_widths_are_refused():
     from fastrl.agents.networks import MLP, NetworkConfig
 
     assert NetworkConfig(policy_hidden=[]).policy_hidden == ()
-    with pytest.raises(ValueError, match=r"network.policy_hidden=\[32, 0\]"):
+    with pytest.raises(ValueError, match=r"network.policy_hidden=\[32, 0\] must be positive"):
         NetworkConfig(policy_hidden=[32, 0])
     net = MLP(hidden=(), out=4)
     x = jax.random.normal(jax.random.PRNGKey(1), (3, 8))
