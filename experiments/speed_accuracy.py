@@ -4,6 +4,7 @@
     python experiments/speed_accuracy.py --models ant hopper     # a subset
     python experiments/speed_accuracy.py --models ant --merge    # add to the committed models
     python experiments/speed_accuracy.py --quick                 # tiny, for CI
+    python experiments/speed_accuracy.py --brax-only             # re-measure Brax's points only
 
 Models: the Ant, HalfCheetah, Hopper and Humanoid (contacts) and the InvertedDoublePendulum (no
 contacts; its cart's joint limit, its only constraint, is not reached within its horizon). Each
@@ -40,6 +41,16 @@ over the whole horizon of the batch, whose first sequences also give its accurac
 and the substep count are runtime arguments of one compiled program per (integrator,
 iterations), so a model compiles 8 programs (x 2 batch shapes) instead of 40; on the Ant that
 program gives bit-identical trajectories and the same speed as one with them baked in.
+
+Brax (where the peer venv exists, ``experiments/peers/setup_peers.sh``): its generalized,
+spring and positional backends run the same asset from the same start states
+under the same controls (``experiments/peers/brax_speed_accuracy.py``), at the timestep Brax's
+env of the same name uses with that backend (e.g. the Ant: 0.01 s x 5 for generalized,
+0.005 s x 10 for spring and positional) and Euler integration (Brax's loader takes no other).
+Its speed is timed over the whole horizon of the batch, like MuJoCo C's. MJX is left out: it
+deadlocked at batch 1024 in this JAX (see ``BRAX_BACKENDS``; ``--brax-backends mjx`` tries it).
+``--brax-only`` adds or re-measures Brax's points alone, keeping the other rows of the output
+JSON (and its fronts are recomputed with them).
 
 Shipped: the setting ``python -m fastrl.train env=<model>`` trains with, i.e. ``conf/env/<model>
 .yaml`` and ``conf/experiment/<model>_ppo.yaml`` over the env's defaults (the Ant: Euler at
@@ -326,8 +337,73 @@ def sweep_mujoco(task: dict, ref: np.ndarray, plan: dict) -> list[dict]:
     return rows
 
 
-def sweep_model(task: dict, plan: dict) -> dict:
-    """Reference, floor, every setting's speed and error, and the Pareto front of one model."""
+# MJX is left out: at batch 1024 it deadlocks here (jaxlib 0.10.2 in the peer venv), the process
+# idle while two threads of jaxlib's batched LAPACK kernels (ParallelBatchMap under its Cholesky)
+# wait on each other; one intra-op thread (BRAX_MJX_XLA_FLAGS) made one run finish and the next
+# hang. (MJX runs MuJoCo's own algorithms; its trajectories at batch 16 did complete.)
+BRAX_BACKENDS = ("generalized", "spring", "positional")
+PEERS_PYTHON = ROOT / ".venv-peers" / "bin" / "python"
+PEERS_DIR = ROOT / "experiments" / "peers"
+# A backend gets this long, then is left out.
+BRAX_MJX_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+BRAX_TIMEOUT_S = 300
+BRAX_BLOWUP = 10.0  # m (rad): a tracked point this far from the reference within 1 s has blown up
+
+
+def sweep_brax(task: dict, ref: np.ndarray, plan: dict) -> list[dict]:
+    """Each Brax backend on the same asset, at the timestep Brax's env of the same name uses with
+    it (``experiments/peers/brax_speed_accuracy.py`` in the peer venv). A backend that fails is
+    reported and left out."""
+    import subprocess
+    import tempfile
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        inputs = pathlib.Path(tmp) / "in.npz"
+        n = plan["sequences"]
+        np.savez(inputs, name=task["name"], xml=str(task["asset"]), dt=task["dt"], batch=plan["batch"],
+                 qpos=task["qpos"][:n], qvel=task["qvel"][:n], ctrl=task["ctrl"][:n])  # fmt: skip
+        for backend in plan["brax"]:
+            out = pathlib.Path(tmp) / f"{backend}.npz"
+            cmd = [str(PEERS_PYTHON), str(PEERS_DIR / "brax_speed_accuracy.py"),
+                   "--backend", backend, "--inputs", str(inputs), "--out", str(out)]  # fmt: skip
+            env = dict(os.environ)
+            if backend == "mjx":  # see BRAX_MJX_XLA_FLAGS
+                env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {BRAX_MJX_XLA_FLAGS}".strip()
+            try:
+                proc = subprocess.run(
+                    cmd, capture_output=True, text=True, cwd=PEERS_DIR, timeout=BRAX_TIMEOUT_S, env=env
+                )
+            except subprocess.TimeoutExpired:
+                print(f"  Brax {backend}: no result within {BRAX_TIMEOUT_S} s, left out", flush=True)
+                continue
+            if proc.returncode != 0:
+                lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "warn" not in ln.lower()]
+                print(f"  Brax {backend}: failed, left out ({lines[-1:]})", flush=True)
+                continue
+            res = np.load(out)
+            meta = json.loads(str(res["meta"]))
+            points = np.asarray(res["q"] if task["name"] in CONTACT_FREE else res["root"], np.float64)
+            # diverged: non-finite, or (Brax has no divergence guard) over BRAX_BLOWUP from the reference
+            far = np.linalg.norm(np.nan_to_num(points - ref, nan=np.inf), axis=-1) > BRAX_BLOWUP
+            bad = ~np.isfinite(points).all(axis=(1, 2)) | far.any(axis=1)
+            setting = {"integrator": backend, "substeps": meta["substeps"], "solver_iterations": None,
+                       "solver": "brax"}  # fmt: skip
+            row = {"engine": "Brax", **setting, "timestep": meta["timestep"],
+                   "control_steps_per_s": meta["control_steps_per_s"], "compile_s": meta["compile_s"],
+                   "error": None if bad.any() else rms_error(points, ref),
+                   "diverged": int(bad.sum()), "shipped": False,
+                   "brax_version": meta["brax_version"], "speed_batch": meta["speed_batch"]}  # fmt: skip
+            print(f"  {label(row)}: {row['control_steps_per_s']:,.0f} control steps/s, error {row['error']}",
+                  flush=True)  # fmt: skip
+            rows.append(row)
+    return rows
+
+
+def sweep_model(task: dict, plan: dict, keep: list[dict] | None = None) -> dict:
+    """Reference, floor, every setting's speed and error, and the Pareto front of one model.
+    ``keep``: rows of an earlier run to reuse instead of sweeping fastrl and MuJoCo C again
+    (``--brax-only``)."""
     name, mj = task["name"], task["mj"]
     t0 = time.perf_counter()
     ref_q, ref_mj = reference_qpos(task, REF_DIVISOR, plan["sequences"])
@@ -335,7 +411,12 @@ def sweep_model(task: dict, plan: dict) -> dict:
     ref = tracked(mj, name, ref_q)
     floor = rms_error(tracked(mj, name, fine_q), ref)
     print(f"{name}: reference in {time.perf_counter() - t0:.1f} s, floor {floor:.2e}", flush=True)
-    rows = sweep_fastrl(task, ref, plan) + sweep_mujoco(task, ref, plan)
+    if keep is None:
+        rows = sweep_fastrl(task, ref, plan) + sweep_mujoco(task, ref, plan)
+    else:
+        rows = [r for r in keep if r["engine"] != "Brax"]
+    for r in sweep_brax(task, ref, plan):
+        rows.append({**r, "added_later": keep is not None, "measured": time.strftime("%Y-%m-%d")})
     fastrl_rows = [r for r in rows if r["engine"] == "fastrl"]
     for r, on_front in zip(rows, pareto(rows, floor), strict=True):
         r["pareto"] = on_front
@@ -357,6 +438,9 @@ def sweep_model(task: dict, plan: dict) -> dict:
 
 
 def label(r: dict) -> str:
+    if r["engine"] == "Brax":
+        small = f" (timed at batch {r['speed_batch']})" if r.get("speed_batch", BATCH) < BATCH else ""
+        return f"Brax {r['integrator']} {r['timestep']:.4g}x{r['substeps']}{small}"
     iters = r["solver_iterations"]
     solver = f"{iters} iters" if r["engine"] == "fastrl" else f"{r['solver']} {iters} iters"
     return f"{r['engine']} {r['integrator']} {r['timestep']:.4g}x{r['substeps']}, {solver}"
@@ -372,7 +456,9 @@ def chart(results: dict, path: pathlib.Path) -> None:
     nrows = -(-len(results) // cols)
     fig, axes = plt.subplots(nrows, cols, figsize=(5.2 * cols, 4.3 * nrows), squeeze=False)
     styles = {("fastrl", "euler"): ("o", "tab:blue"), ("fastrl", "rk4"): ("s", "tab:orange"),
-              ("MuJoCo C", "euler"): ("^", "black"), ("MuJoCo C", "rk4"): ("v", "black")}  # fmt: skip
+              ("MuJoCo C", "euler"): ("^", "black"), ("MuJoCo C", "rk4"): ("v", "black"),
+              ("Brax", "mjx"): ("D", "tab:green"), ("Brax", "generalized"): ("P", "tab:purple"),
+              ("Brax", "spring"): ("X", "tab:brown"), ("Brax", "positional"): ("*", "tab:pink")}  # fmt: skip
     for ax, (name, res) in zip(axes.flat, results.items(), strict=False):
         ok = [r for r in res["rows"] if r["error"] is not None]
         for (engine, integrator), (marker, color) in styles.items():
@@ -409,14 +495,16 @@ def chart(results: dict, path: pathlib.Path) -> None:
 
 
 def markdown(results: dict, machine: str) -> str:
-    lines = ["# Speed vs accuracy: fastrl's physics knobs and MuJoCo C", "",
+    lines = ["# Speed vs accuracy: fastrl's physics knobs, MuJoCo C and Brax", "",
              f"Machine: {machine}. Command: `python experiments/speed_accuracy.py`.", "",
              "Error: RMS over control steps and sequences of the distance to a converged MuJoCo C "
              "reference (float64, asset timestep / 20, Newton with 100 iterations and tolerance "
              "1e-12) of the root body's world position (of qpos for the fixed-base pendulum), from "
              "the same start states under the same random controls. Floor: that reference against "
              "one at timestep / 40. Speed: control steps/s at the batch shown (fastrl: the jitted, "
-             "vmapped control step in float32; MuJoCo C: `mujoco.rollout` on 2 threads). Pareto: "
+             "vmapped control step in float32; MuJoCo C: `mujoco.rollout` on 2 threads; Brax: "
+             "its backend's pipeline step, jitted and vmapped, at the timestep Brax's env of the "
+             "same name uses with that backend, Euler). Pareto: "
              "no other setting is at least as fast and as accurate (errors within "
              f"{PARETO_TOL:.0%} plus the floor count as equal), among all settings (front) or "
              "fastrl's alone (fastrl front).", ""]  # fmt: skip
@@ -427,12 +515,15 @@ def markdown(results: dict, machine: str) -> str:
             for key, text in (("pareto", "the Pareto front"), ("pareto_fastrl", "fastrl's front"))
         )
         s, ref = res["shipped"], res["reference"]
+        later = [r for r in res["rows"] if r.get("added_later")]
         lines += [f"## {name}", "",
                   f"Control step {res['dt']:g} s, horizon {res['horizon_s']:g} s ({res['control_steps']} "
                   f"control steps), {res['sequences']} sequences. Metric: {res['metric']}. Reference: "
                   f"MuJoCo C {ref['integrator']} at {ref['timestep']:.3g} s. Floor: {res['floor']:.2e}. "
                   f"Shipped: fastrl {s['integrator']} x{s['substeps']}, {s['solver_iterations']} "
                   f"iterations, {where}.", "",
+                  *([f"Brax's rows were measured on {later[0]['measured']} by `--brax-only`, in a later run "
+                     "than the others on the same machine.", ""] if later else []),
                   "| setting | control steps/s | error | front | fastrl front | shipped |",
                   "| --- | ---: | ---: | :---: | :---: | :---: |"]  # fmt: skip
         for r in sorted(res["rows"], key=lambda r: -r["control_steps_per_s"]):
@@ -454,14 +545,29 @@ def main() -> None:
         action="store_true",
         help="keep the other models already in the output JSON (run the sweep in parts)",
     )
+    parser.add_argument("--no-brax", action="store_true", help="leave Brax's backends out")
+    parser.add_argument("--brax-backends", nargs="+", default=list(BRAX_BACKENDS), metavar="BACKEND",
+                        choices=("mjx", *BRAX_BACKENDS))  # fmt: skip
+    parser.add_argument(
+        "--brax-only",
+        action="store_true",
+        help="re-measure only Brax's backends, keeping fastrl's and MuJoCo C's rows from the output JSON",
+    )
     args = parser.parse_args()
+    if args.brax_only and not PEERS_PYTHON.exists():
+        parser.error(f"--brax-only needs the peer venv {PEERS_PYTHON} (experiments/peers/setup_peers.sh)")
     models = args.models or (["inverted_double_pendulum"] if args.quick else list(MODELS))
     results = {}
     stem = "speed_accuracy_quick" if args.quick else "speed_accuracy"
     previous = args.out / f"{stem}.json"
-    if args.merge and previous.exists():
-        results = {k: v for k, v in json.loads(previous.read_text())["models"].items() if k not in models}
+    earlier = json.loads(previous.read_text())["models"] if previous.exists() else {}
+    if args.brax_only and not set(models) <= set(earlier):
+        parser.error(f"--brax-only: {previous} has no rows for {sorted(set(models) - set(earlier))}")
+    if args.merge or args.brax_only:
+        results = {k: v for k, v in earlier.items() if k not in models}
         print(f"keeping {', '.join(results) or 'no models'} from {previous}")
+    if not PEERS_PYTHON.exists() and not args.no_brax:
+        print(f"no peer venv at {PEERS_PYTHON}: Brax left out (bash experiments/peers/setup_peers.sh)")
     for name in models:
         # Quick: the shipped integrator and iterations only, and one program shape for speed and
         # accuracy (batch = sequences, timed over the whole short horizon).
@@ -475,8 +581,10 @@ def main() -> None:
             "substeps": substep_grid(task["frame_skip"], args.quick),
             "integrators": [task["shipped"]["integrator"]] if args.quick else ["euler", "rk4"],
             "iterations": [task["shipped"]["solver_iterations"]] if one_iteration_count else ITERATIONS,
+            "brax": [] if args.quick or args.no_brax or not PEERS_PYTHON.exists() else args.brax_backends,
         }
-        results[name] = sweep_model(task, plan)
+        keep = earlier[name]["rows"] if args.brax_only else None
+        results[name] = sweep_model(task, plan, keep)
 
     cpu = platform.processor() or platform.machine()
     machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}, mujoco {mujoco.__version__}"

@@ -39,6 +39,8 @@ MuJoCo's models converted by Brax), evaluating 16 episodes with the mean action 
 * ``halfcheetah_es`` (target 1000): 128 episodes of 1000 steps per update (Brax's
   ``population_size=64`` antithetic pairs), perturbation std 0.05, learning rate 0.02,
   centred-rank fitness, 2x32 policy, an evaluation every 640k env steps.
+* ``swimmer_es`` (target 100): as ``halfcheetah_es`` but with a linear policy (fastrl's
+  ``experiment/swimmer_es``; Brax: ``hidden_layer_sizes=()``).
 * ``inverted_pendulum_apg`` (target 950): 64 envs, gradients over 32-step horizons, learning
   rate 3e-3, 2x32 policy. fastrl's ``experiment/inverted_pendulum_apg`` adds smooth shaping terms
   (upright, centred) to the reward it differentiates, since the 0/1 survival reward has no
@@ -120,6 +122,19 @@ TASKS["halfcheetah_es"] = {
     "fastrl_steps": 20_480_000,
     "brax": (
         "--algo es --env halfcheetah --hidden 32 32 --set population_size=64 perturbation_std=0.05"
+        " learning_rate=0.02 fitness_shaping=CENTERED_RANK num_eval_envs=16 deterministic_eval=True"
+        " num_evals=33"
+    ).split(),
+    "brax_steps": 20_480_000,
+}
+TASKS["swimmer_es"] = {
+    "label": "swimmer (Brax: its generalized swimmer)",
+    "algo": "es",
+    "target": 100.0,
+    "fastrl": ["env=swimmer", "algo=es"],  # 5 updates (640k env steps) per evaluation
+    "fastrl_steps": 20_480_000,
+    "brax": (
+        "--algo es --env swimmer --hidden --set population_size=64 perturbation_std=0.05"
         " learning_rate=0.02 fitness_shaping=CENTERED_RANK num_eval_envs=16 deterministic_eval=True"
         " num_evals=33"
     ).split(),

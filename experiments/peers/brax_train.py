@@ -8,7 +8,8 @@ Run inside the peer venv (see experiments/peers/setup_peers.sh), e.g.
 
 ``--set KEY=VALUE`` passes keyword arguments to ``brax.training.agents.<algo>.train.train``
 (values are Python literals; anything else is a string); ``--hidden`` sets the networks'
-hidden layers (``hidden_layer_sizes`` of Brax's network factory for that algorithm). Everything
+hidden layers (``hidden_layer_sizes`` of Brax's network factory for that algorithm; ``--hidden``
+with no widths makes the policy linear). Everything
 not set keeps Brax 0.14's defaults except ``episode_length=1000`` and
 ``normalize_observations=True``. With ``--stop-at-return X`` the run stops at its first
 evaluation whose return is at least X (``progress_fn`` raises; Brax has no such option).
@@ -62,7 +63,7 @@ def main() -> None:
     parser.add_argument("--algo", choices=ALGOS, required=True)
     parser.add_argument("--env", required=True)
     parser.add_argument("--backend", default=None, help="Brax's default for the env when left out")
-    parser.add_argument("--hidden", type=int, nargs="+", default=None)
+    parser.add_argument("--hidden", type=int, nargs="*", default=None, help="none given: a linear policy")
     parser.add_argument("--set", nargs="*", action="extend", default=[], metavar="KEY=VALUE")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--stop-at-return", type=float, default=None)
