@@ -62,6 +62,23 @@ def install_device_put_replicated_shim() -> bool:
     return True
 
 
+def install_clip_shim() -> bool:
+    """Let ``jnp.clip`` take the ``a_min``/``a_max`` keywords again (newer JAX removed them; Brax
+    0.14's fluid forces, ``brax/fluid.py``, which its swimmer needs, still pass them). Returns True
+    if the shim was installed."""
+    import inspect
+
+    if "a_min" in inspect.signature(jnp.clip).parameters:
+        return False
+    clip = jnp.clip
+
+    def clip_with_old_keywords(x, min=None, max=None, *, a_min=None, a_max=None, **kwargs):  # noqa: A002
+        return clip(x, a_min if min is None else min, a_max if max is None else max, **kwargs)
+
+    jnp.clip = clip_with_old_keywords
+    return True
+
+
 class TargetReached(Exception):
     """Raised by a training ``progress_fn`` to end a Brax run at a target return."""
 
@@ -80,6 +97,7 @@ def train_until_target(train, emit, t0: float, **kwargs) -> None:
 
 
 SHIMMED = install_device_put_replicated_shim()
+CLIP_SHIMMED = install_clip_shim()
 with contextlib.redirect_stdout(sys.stderr):
     import brax
     from brax import envs
