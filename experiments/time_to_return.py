@@ -114,32 +114,24 @@ TASKS.update(
         for env, target in (("hopper", 1000.0), ("halfcheetah", 2000.0))
     }
 )
-TASKS["halfcheetah_es"] = {
-    "label": "halfcheetah (Brax: its generalized halfcheetah)",
-    "algo": "es",
-    "target": 1000.0,
-    "fastrl": ["env=halfcheetah", "algo=es"],  # 5 updates (640k env steps) per evaluation
-    "fastrl_steps": 20_480_000,
-    "brax": (
-        "--algo es --env halfcheetah --hidden 32 32 --set population_size=64 perturbation_std=0.05"
-        " learning_rate=0.02 fitness_shaping=CENTERED_RANK num_eval_envs=16 deterministic_eval=True"
-        " num_evals=33"
-    ).split(),
-    "brax_steps": 20_480_000,
-}
-TASKS["swimmer_es"] = {
-    "label": "swimmer (Brax: its generalized swimmer)",
-    "algo": "es",
-    "target": 100.0,
-    "fastrl": ["env=swimmer", "algo=es"],  # 5 updates (640k env steps) per evaluation
-    "fastrl_steps": 20_480_000,
-    "brax": (
-        "--algo es --env swimmer --hidden --set population_size=64 perturbation_std=0.05"
-        " learning_rate=0.02 fitness_shaping=CENTERED_RANK num_eval_envs=16 deterministic_eval=True"
-        " num_evals=33"
-    ).split(),
-    "brax_steps": 20_480_000,
-}
+_ES_BRAX = (
+    "--algo es --set population_size=64 perturbation_std=0.05 learning_rate=0.02"
+    " fitness_shaping=CENTERED_RANK num_eval_envs=16 deterministic_eval=True num_evals=33"
+)
+TASKS.update(
+    {
+        f"{env}_es": {
+            "label": f"{env} (Brax: its generalized {env})",
+            "algo": "es",
+            "target": target,
+            "fastrl": [f"env={env}", "algo=es"],  # 5 updates (640k env steps) per evaluation
+            "fastrl_steps": 20_480_000,
+            "brax": [*f"{_ES_BRAX} --env {env} --hidden".split(), *hidden],  # swimmer: linear
+            "brax_steps": 20_480_000,
+        }
+        for env, target, hidden in (("halfcheetah", 1000.0, ["32", "32"]), ("swimmer", 100.0, []))
+    }
+)
 TASKS["inverted_pendulum_apg"] = {
     "label": "inverted_pendulum (Brax: its generalized inverted_pendulum, survival reward only)",
     "algo": "apg",
