@@ -486,7 +486,7 @@ def chart(results: dict, path: pathlib.Path) -> None:
         ax.set(xscale="log", yscale="log", xlabel=f"control steps / s (batch {res['batch']})",
                ylabel=f"RMS error of {res['metric']}", title=title)  # fmt: skip
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=6)
+        ax.legend(fontsize=6, framealpha=0.4)  # translucent: points may sit under it
     for ax in list(axes.flat)[len(results) :]:
         ax.axis("off")
     fig.tight_layout()
