@@ -339,13 +339,12 @@ def sweep_mujoco(task: dict, ref: np.ndarray, plan: dict) -> list[dict]:
 
 # MJX is left out: at batch 1024 it deadlocks here (jaxlib 0.10.2 in the peer venv), the process
 # idle while two threads of jaxlib's batched LAPACK kernels (ParallelBatchMap under its Cholesky)
-# wait on each other; one intra-op thread (BRAX_MJX_XLA_FLAGS) made one run finish and the next
-# hang. (MJX runs MuJoCo's own algorithms; its trajectories at batch 16 did complete.)
+# wait on each other; with one intra-op thread (XLA_FLAGS intra_op_parallelism_threads=1) one run
+# finished and the next hung, so no workaround is kept (its trajectories at batch 16 did complete).
 BRAX_BACKENDS = ("generalized", "spring", "positional")
 PEERS_PYTHON = ROOT / ".venv-peers" / "bin" / "python"
 PEERS_DIR = ROOT / "experiments" / "peers"
 # A backend gets this long, then is left out.
-BRAX_MJX_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 BRAX_TIMEOUT_S = 300
 BRAX_BLOWUP = 10.0  # m (rad): a tracked point this far from the reference within 1 s has blown up
 
@@ -367,12 +366,9 @@ def sweep_brax(task: dict, ref: np.ndarray, plan: dict) -> list[dict]:
             out = pathlib.Path(tmp) / f"{backend}.npz"
             cmd = [str(PEERS_PYTHON), str(PEERS_DIR / "brax_speed_accuracy.py"),
                    "--backend", backend, "--inputs", str(inputs), "--out", str(out)]  # fmt: skip
-            env = dict(os.environ)
-            if backend == "mjx":  # see BRAX_MJX_XLA_FLAGS
-                env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {BRAX_MJX_XLA_FLAGS}".strip()
             try:
                 proc = subprocess.run(
-                    cmd, capture_output=True, text=True, cwd=PEERS_DIR, timeout=BRAX_TIMEOUT_S, env=env
+                    cmd, capture_output=True, text=True, cwd=PEERS_DIR, timeout=BRAX_TIMEOUT_S
                 )
             except subprocess.TimeoutExpired:
                 print(f"  Brax {backend}: no result within {BRAX_TIMEOUT_S} s, left out", flush=True)
