@@ -40,7 +40,8 @@ def default_nconmax(ncand: int) -> int:
     largest counts were Ant 5 (25 candidates, so 8 slots), Hopper 5 (11, 8), Walker2d 8 (14, 8),
     HalfCheetah 6 (16, 8), Pusher 8 (13, 8), Humanoid 11 and HumanoidStandup 31 (138, 35). The
     Ant's median is 1 and 99.99% of its states have at most 4. ``<size nconmax>`` in the MJCF or
-    ``load_mjcf(nconmax=...)`` overrides the rule.
+    ``load_mjcf(nconmax=...)`` overrides the rule: the Humanoid asset sets 12 (the rule's 35 gave
+    168 rows where 77 hold every contact it makes; the step runs 1.9x faster).
     """
     return max(MIN_NCONMAX, -(-ncand // 4))
 
