@@ -164,3 +164,12 @@ def test_time_to_return_reuses_saved_brax_runs_and_says_so(tmp_path):
         ttr.reused_brax_runs(saved, "ant", [1, 2])
     with pytest.raises(SystemExit, match="holds task 'ant'"):
         ttr.reused_brax_runs(saved, "inverted_pendulum", [0])
+
+
+def test_solver_iterations_quick(tmp_path):
+    rows = _run_quick("solver_iterations.py", tmp_path, "solver_iterations_quick.json")
+    assert [r["name"] for r in rows] == ["inverted_pendulum", "hopper"]
+    for r in rows:
+        converged = [r["mujoco_converged"][str(k)] for k in range(1, 9)]
+        assert converged == sorted(converged) and converged[-1] == 1.0  # a CDF of iteration counts
+        assert 1 <= r["rule"] <= 8 and r["shipped"] >= 1

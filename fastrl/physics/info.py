@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("model", help="an MJCF file")
     parser.add_argument("--integrator", choices=["euler", "rk4"], default=None)
-    parser.add_argument("--solver-iterations", type=int, default=io.DEFAULT_SOLVER_ITERATIONS)
+    parser.add_argument("--solver-iterations", type=int, default=None, help="default: the model's own")
     args = parser.parse_args(argv)
     try:
         m = io.load_mjcf(args.model, integrator=args.integrator, solver_iterations=args.solver_iterations)

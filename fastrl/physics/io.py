@@ -239,19 +239,37 @@ def _fluid_bodies(m: mujoco.MjModel) -> np.ndarray:
     return (np.arange(m.nbody) > 0) & (m.body_mass >= mujoco.mjMINVAL)
 
 
-# Newton steps per solve. With 8, the Ant under random controls stays within 1 cm of MuJoCo's
-# torso over 1 s in all of 32 sequences (both integrators); with 4 the RK4 median is 1.1 cm with
-# decimetre outliers, with 2 it is 45 cm. More than 8 changes nothing measurable.
+# Newton steps per solve, for a model that does not name its own count. With 8, the Ant under
+# random controls stays within 1 cm of MuJoCo's torso over 1 s in all of 32 sequences (both
+# integrators); with 4 the RK4 median is 1.1 cm with decimetre outliers, with 2 it is 45 cm. More
+# than 8 changes nothing measurable.
 DEFAULT_SOLVER_ITERATIONS = 8
+# An MJCF names its own count with <custom><numeric name="fastrl_solver_iterations" data="N"/>
+# (MuJoCo keeps custom numerics as user data and ignores them). fastrl's assets set it from how
+# many Newton iterations MuJoCo's own solver needs on that model (see fastrl/assets/README.md).
+SOLVER_ITERATIONS_NUMERIC = "fastrl_solver_iterations"
+
+
+def asset_solver_iterations(m: mujoco.MjModel) -> int:
+    """The model's own solver iteration count (its custom numeric), else the default."""
+    i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, SOLVER_ITERATIONS_NUMERIC)
+    if i < 0:
+        return DEFAULT_SOLVER_ITERATIONS
+    value = float(m.numeric_data[m.numeric_adr[i]])
+    if value != int(value) or value < 1:
+        raise ValueError(f"custom numeric {SOLVER_ITERATIONS_NUMERIC}={value}; use a whole number >= 1")
+    return int(value)
 
 
 def model_from_mujoco(
     m: mujoco.MjModel,
     integrator: str | None = None,
-    solver_iterations: int = DEFAULT_SOLVER_ITERATIONS,
+    solver_iterations: int | None = None,
     nconmax: int | None = None,
 ) -> Model:
     """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
+    if solver_iterations is None:
+        solver_iterations = asset_solver_iterations(m)
     if solver_iterations < 1:
         raise ValueError(f"solver_iterations={solver_iterations}; it must be at least 1")
     if nconmax is not None and nconmax < 1:
@@ -326,7 +344,7 @@ def model_from_mujoco(
 def load_mjcf(
     path_or_xml: str | os.PathLike,
     integrator: str | None = None,
-    solver_iterations: int = DEFAULT_SOLVER_ITERATIONS,
+    solver_iterations: int | None = None,
     nconmax: int | None = None,
 ) -> Model:
     """Compiles an MJCF file (or XML string) with MuJoCo's compiler into a fastrl ``Model``.
@@ -337,7 +355,9 @@ def load_mjcf(
     Args:
       path_or_xml: a path to an ``.xml`` file, or the XML text itself.
       integrator: ``"euler"`` or ``"rk4"`` to override the model's ``<option integrator>``.
-      solver_iterations: the constraint solver's static iteration count (Newton steps).
+      solver_iterations: the constraint solver's static iteration count (Newton steps); default
+        the MJCF's ``<custom><numeric name="fastrl_solver_iterations">`` if it sets one, else
+        ``DEFAULT_SOLVER_ITERATIONS``.
       nconmax: contact slots, the most contacts that get constraint rows at once (the deepest
         candidates); default ``<size nconmax>`` if the MJCF sets it, else
         ``constraint.default_nconmax``.

@@ -102,6 +102,16 @@ def test_bad_inputs():
         physics.load_mjcf(asset("pendulum"), integrator="verlet")
 
 
+def test_solver_iterations_from_the_asset_or_the_argument():
+    numeric = '<custom><numeric name="fastrl_solver_iterations" data="{}"/></custom>'
+    assert physics.load_mjcf(_xml()).solver_iterations == physics.io.DEFAULT_SOLVER_ITERATIONS
+    assert physics.load_mjcf(_xml(extra=numeric.format(3))).solver_iterations == 3
+    assert physics.load_mjcf(_xml(extra=numeric.format(3)), solver_iterations=6).solver_iterations == 6
+    for bad in ("0", "2.5"):
+        with pytest.raises(ValueError, match="fastrl_solver_iterations"):
+            physics.load_mjcf(_xml(extra=numeric.format(bad)))
+
+
 def test_model_is_a_pytree_with_static_topology():
     import jax
 
