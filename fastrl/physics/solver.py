@@ -11,7 +11,7 @@ solution should stop changing before the count runs out. Iteration counts (``Mod
 are per model: fastrl's assets name theirs (``<custom><numeric name="fastrl_solver_iterations">``),
 the smallest count at which MuJoCo's own Newton solver (tolerance 1e-8) converged in 99.99% of
 random-action physics steps and fastrl's iterate matched 32 iterations' to 1e-4 everywhere
-(``experiments/solver_iterations.py``): Ant 7, Walker2d 7, Hopper 5, HalfCheetah 4, Pusher 3,
+(``experiments/solver_iterations.py``): Ant 7, Walker2d 7, HalfCheetah 5, Hopper 5, Pusher 3,
 Swimmer 3, Reacher 2, InvertedPendulum 2, InvertedDoublePendulum 2; the Humanoids and models
 that name none take ``io.DEFAULT_SOLVER_ITERATIONS`` (8). The Ant is trained with 5
 (``conf/experiment/ant_ppo.yaml``: 99.8% of MuJoCo's steps converge within 5). Conjugate
