@@ -120,7 +120,9 @@ def write(rows: list[dict], out: pathlib.Path, stem: str, command: str) -> None:
         "| --- | ---: | ---: | " + " | ".join("---:" for _ in KS) + " | ---: | ---: |",
     ]  # fmt: skip
     for r in rows:
-        off = r["fastrl_off_1e-4"]
+        r["mujoco_converged"] = {int(k): v for k, v in r["mujoco_converged"].items()}
+        off = r["fastrl_off_1e-4"] = {int(k): v for k, v in r["fastrl_off_1e-4"].items()}
+        r["fastrl_worst"] = {int(k): v for k, v in r["fastrl_worst"].items()}
         cells = " | ".join(
             f"{100 * r['mujoco_converged'][k]:.3f}%" + (f" / {100 * off[k]:.3f}%" if k in off else "")
             for k in KS
@@ -141,6 +143,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="two models, tiny rollouts, for CI")
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     parser.add_argument("--models", nargs="+", choices=sorted(FRAME_SKIP), default=None)
+    parser.add_argument("--merge", action="store_true", help="keep the other models' rows in the output JSON")
     args = parser.parse_args()
     names = args.models or (["inverted_pendulum", "hopper"] if args.quick else list(FRAME_SKIP))
     rows = []
@@ -150,6 +153,12 @@ def main() -> None:
         print(f"{name}: rule {r['rule']}, shipped {r['shipped']}, MuJoCo max {r['max_mujoco_iterations']}")
     stem = "solver_iterations_quick" if args.quick else "solver_iterations"
     command = "python experiments/solver_iterations.py" + (" --quick" if args.quick else "")
+    old = args.out / f"{stem}.json"
+    if args.merge and old.exists():
+        kept = {r["name"]: r for r in json.loads(old.read_text())}
+        kept.update({r["name"]: r for r in rows})
+        rows = [kept[n] for n in FRAME_SKIP if n in kept]
+        command += f" (then --models {' '.join(names)} --merge)"
     write(rows, args.out, stem, command)
 
 
