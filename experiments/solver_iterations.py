@@ -1,6 +1,6 @@
 """How many Newton iterations each model needs: the evidence behind the assets' iteration counts.
 
-    python experiments/solver_iterations.py            # ~10 min on 2 cores
+    python experiments/solver_iterations.py            # ~40 min on 2 cores (the Humanoids most)
     python experiments/solver_iterations.py --quick    # tiny, for CI
 
 For every Gymnasium-suite asset, two measurements along random-action rollouts (controls uniform
@@ -21,7 +21,6 @@ more than 1e-4; none such keeps the default 8. Writes
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import pathlib
 
@@ -41,7 +40,6 @@ FRAME_SKIP = {
     "pusher": 5, "reacher": 2, "swimmer": 4, "inverted_pendulum": 2, "inverted_double_pendulum": 5,
 }  # fmt: skip
 KS = (1, 2, 3, 4, 5, 6, 7, 8)
-forward_mod = importlib.import_module("fastrl.physics.forward")
 
 
 def mujoco_iterations(name: str, control_steps: int) -> np.ndarray:
@@ -63,11 +61,11 @@ def mujoco_iterations(name: str, control_steps: int) -> np.ndarray:
     return np.asarray(out)
 
 
-def fastrl_differences(name: str, ks: tuple[int, ...], batch: int, control_steps: int) -> np.ndarray:
-    """(steps, len(ks)) relative qacc differences between k and 32 Newton iterations."""
+def fastrl_differences(name: str, k: int, batch: int, control_steps: int) -> np.ndarray:
+    """(steps,) relative qacc differences between k and 32 Newton iterations along rollouts."""
     path = ASSETS / f"{name}.xml"
     ref = physics.load_mjcf(path, solver_iterations=32)
-    models = [physics.load_mjcf(path, solver_iterations=k) for k in ks]
+    model = physics.load_mjcf(path, solver_iterations=k)
     key = jax.random.PRNGKey(0)
     lo, hi = np.asarray(ref.actuator_ctrlrange).T
     ctrl = jax.random.uniform(key, (control_steps, batch, ref.nu), minval=lo, maxval=hi)
@@ -76,14 +74,13 @@ def fastrl_differences(name: str, ks: tuple[int, ...], batch: int, control_steps
 
     def one(d, u):
         d = d.replace(ctrl=u)
-        want = forward_mod.forward(ref, d).qacc
-        scale = jnp.max(jnp.abs(want)) + 1.0
-        errs = jnp.stack([jnp.max(jnp.abs(forward_mod.forward(m, d).qacc - want)) / scale for m in models])
+        want = physics.forward(ref, d).qacc
+        err = jnp.max(jnp.abs(physics.forward(model, d).qacc - want)) / (jnp.max(jnp.abs(want)) + 1.0)
         d = jax.lax.fori_loop(0, FRAME_SKIP[name], lambda _, d: physics.step(ref, d), d)
-        return d, errs
+        return d, err
 
     run = jax.jit(lambda d: jax.lax.scan(lambda d, u: jax.vmap(one)(d, u), d, ctrl)[1])
-    return np.asarray(run(data)).reshape(-1, len(ks))
+    return np.asarray(run(data)).reshape(-1)
 
 
 def measure(name: str, quick: bool) -> dict:
@@ -93,7 +90,7 @@ def measure(name: str, quick: bool) -> dict:
     first = next((k for k in KS if converged[k] >= 0.9999), io.DEFAULT_SOLVER_ITERATIONS)
     off, worst, rule = {}, {}, io.DEFAULT_SOLVER_ITERATIONS
     for k in range(first, io.DEFAULT_SOLVER_ITERATIONS + 1):  # one compile per k checked
-        diffs = fastrl_differences(name, (k,), 4 if quick else 64, 10 if quick else 300)[:, 0]
+        diffs = fastrl_differences(name, k, 4 if quick else 64, 10 if quick else 300)
         off[k], worst[k] = float(np.mean(diffs > 1e-4)), float(diffs.max())
         if off[k] == 0:
             rule = k
@@ -102,6 +99,12 @@ def measure(name: str, quick: bool) -> dict:
     return {"name": name, "physics_steps": int(its.size), "max_mujoco_iterations": int(its.max()),
             "mujoco_converged": converged, "fastrl_off_1e-4": off, "fastrl_worst": worst,
             "rule": int(rule), "shipped": int(shipped)}  # fmt: skip
+
+
+def _int_keys(row: dict) -> dict:
+    """A row read back from JSON, its per-k dicts keyed by int again (JSON keys are strings)."""
+    per_k = ("mujoco_converged", "fastrl_off_1e-4", "fastrl_worst")
+    return {**row, **{f: {int(k): v for k, v in row[f].items()} for f in per_k}}
 
 
 def write(rows: list[dict], out: pathlib.Path, stem: str, command: str) -> None:
@@ -120,9 +123,7 @@ def write(rows: list[dict], out: pathlib.Path, stem: str, command: str) -> None:
         "| --- | ---: | ---: | " + " | ".join("---:" for _ in KS) + " | ---: | ---: |",
     ]  # fmt: skip
     for r in rows:
-        r["mujoco_converged"] = {int(k): v for k, v in r["mujoco_converged"].items()}
-        off = r["fastrl_off_1e-4"] = {int(k): v for k, v in r["fastrl_off_1e-4"].items()}
-        r["fastrl_worst"] = {int(k): v for k, v in r["fastrl_worst"].items()}
+        off = r["fastrl_off_1e-4"]
         cells = " | ".join(
             f"{100 * r['mujoco_converged'][k]:.3f}%" + (f" / {100 * off[k]:.3f}%" if k in off else "")
             for k in KS
@@ -155,7 +156,7 @@ def main() -> None:
     command = "python experiments/solver_iterations.py" + (" --quick" if args.quick else "")
     old = args.out / f"{stem}.json"
     if args.merge and old.exists():
-        kept = {r["name"]: r for r in json.loads(old.read_text())}
+        kept = {r["name"]: _int_keys(r) for r in json.loads(old.read_text())}
         kept.update({r["name"]: r for r in rows})
         rows = [kept[n] for n in FRAME_SKIP if n in kept]
         command += f" (then --models {' '.join(names)} --merge)"
