@@ -4,9 +4,12 @@
     python experiments/bench_contacts.py --quick     # tiny, for CI (peers skipped if absent)
 
 Control step 0.05 s. fastrl runs its Ant asset (a) as Gymnasium/EnvPool do, RK4 at 0.01 s x 5,
-(b) with semi-implicit Euler at 0.01 s x 5, both with the default 8 solver iterations, and (c) with
-the settings ``env=ant algo=ppo`` trains with (``conf/experiment/ant_ppo.yaml``: Euler, 5
-iterations), under a jitted scan of vmapped steps with fresh random actions each control step. Peers run from
+(b) with semi-implicit Euler at 0.01 s x 5, both with the asset's solver iterations (7), and (c)
+with the settings ``env=ant algo=ppo`` trains with (``conf/experiment/ant_ppo.yaml``: Euler, 5
+iterations), under a jitted scan of vmapped steps with fresh random actions each control step;
+then (a) and (c) again with the batch split over 2 CPU devices (``shard_map``, one program copy
+per core, as ``python -m fastrl.train`` runs PPO), in a child process started with
+``XLA_FLAGS=--xla_force_host_platform_device_count=2``. Peers run from
 ``.venv-peers`` (``bash experiments/peers/setup_peers.sh``): EnvPool ``Ant-v4`` with 2 threads and
 Brax's ``ant`` with its mjx, generalized, spring and positional backends at their own defaults.
 Writes ``experiments/results/contacts_throughput.{md,json,png}``.
@@ -19,6 +22,7 @@ import json
 import os
 import pathlib
 import subprocess
+import sys
 import time
 
 import jax
@@ -36,9 +40,10 @@ QPOS0 = np.array([0, 0, 0.75, 1, 0, 0, 0, 0, 1, 0, -1, 0, -1, 0, 1.0])
 
 
 def bench_fastrl(
-    integrator: str, batch: int, control_steps: int, iterations: int = 8, substeps: int = 5
+    integrator: str, batch: int, control_steps: int, iterations: int | None = None, substeps: int = 5
 ) -> dict:
     m = physics.load_mjcf(ANT, integrator=integrator, solver_iterations=iterations)
+    ndev = jax.device_count()
     key = jax.random.PRNGKey(0)
     qvel = 0.1 * jax.random.normal(key, (batch, m.nv))
     data = jax.vmap(lambda v: physics.make_data(m, qpos=QPOS0, qvel=v))(qvel)
@@ -50,6 +55,12 @@ def bench_fastrl(
     def run(d, ctrl):
         return jax.lax.scan(lambda d, u: (jax.vmap(control_step)(d, u), None), d, ctrl)[0]
 
+    if ndev > 1:  # each device runs its slice of the batch
+        mesh = jax.sharding.Mesh(np.array(jax.devices()), ("devices",))
+        split = jax.sharding.PartitionSpec("devices")
+        run = jax.shard_map(run, mesh=mesh, in_specs=(split, jax.sharding.PartitionSpec(None, "devices")),
+                            out_specs=split, check_vma=False)  # fmt: skip
+
     t0 = time.perf_counter()
     compiled = jax.jit(run).lower(data, ctrl).compile()
     compile_s = time.perf_counter() - t0
@@ -58,13 +69,23 @@ def bench_fastrl(
     out = jax.block_until_ready(compiled(out, ctrl))
     wall = time.perf_counter() - t0
     return {
-        "engine": f"fastrl {integrator} 0.01x{substeps}, {iterations} iters",
+        "engine": f"fastrl {integrator} 0.01x{substeps}, {m.solver_iterations} iters"
+        + (f", {ndev} devices" if ndev > 1 else ""),
         "batch": batch,
         "control_steps_per_s": batch * control_steps / wall,
         "compile_s": compile_s,
         "diverged_fraction": float(jnp.mean(out.diverged)),
         "solver_iterations": m.solver_iterations,
     }
+
+
+def bench_fastrl_devices(settings, batches: list[int], control_steps: int, devices: int) -> list[dict]:
+    """``bench_fastrl`` rows measured in a child process with ``devices`` CPU devices."""
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+    spec = json.dumps({"settings": settings, "batches": batches, "control_steps": control_steps})
+    cmd = [sys.executable, __file__, "--worker", spec]
+    out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True, timeout=3600)
+    return [json.loads(line[4:]) for line in out.stdout.splitlines() if line.startswith("ROW ")]
 
 
 def _peer(args: list[str]) -> dict | None:
@@ -121,20 +142,35 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--worker", help=argparse.SUPPRESS)  # child process of bench_fastrl_devices
     args = parser.parse_args()
+    if args.worker:
+        spec = json.loads(args.worker)
+        for integrator, iterations in spec["settings"]:
+            for b in spec["batches"]:
+                print(
+                    "ROW " + json.dumps(bench_fastrl(integrator, b, spec["control_steps"], iterations)),
+                    flush=True,
+                )
+        return
     fastrl_batches = [16] if args.quick else [64, 256, 1024, 4096, 8192]
     control_steps = 2 if args.quick else 10
     from omegaconf import OmegaConf
 
     shipped = OmegaConf.load(ROOT / "conf" / "experiment" / "ant_ppo.yaml").env
     rows = []
-    settings = [("rk4", 8), ("euler", 8), (shipped.integrator, shipped.solver_iterations)]
+    settings = [("rk4", None), ("euler", None), (shipped.integrator, shipped.solver_iterations)]
     if args.quick:  # one compile in CI: the setting the Ant trains with
         settings = settings[-1:]
     for integrator, iterations in settings:
         for b in fastrl_batches:
             rows.append(bench_fastrl(integrator, b, control_steps, iterations))
             print(rows[-1], flush=True)
+    split_settings = settings[-1:] if args.quick else [settings[0], settings[-1]]
+    for r in bench_fastrl_devices(split_settings, [2 * b for b in fastrl_batches[:1]] if args.quick
+                                  else fastrl_batches[1:], control_steps, 2):  # fmt: skip
+        rows.append(r)
+        print(rows[-1], flush=True)
     if not args.quick:
         for n in (16, 64, 256):
             rows.append(bench_envpool(n, 5.0))

@@ -188,17 +188,18 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
     total_updates = max(1, math.ceil(cfg.train.total_env_steps / steps_per_update))
     k = cfg.train.updates_per_chunk
     n_chunks = math.ceil(total_updates / k)
+    mesh = scale.mesh()
     if n_agents > 1:
         learner = scale.batch_learner(cfg, specs, env, n_chunks * k)
         init_key = scale.init_keys(specs)
     else:
-        learner = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, n_chunks * k)
+        split = mesh if scale.learner_splits(cfg, mesh) else None
+        learner = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, n_chunks * k, mesh=split)
         init_key = jax.random.PRNGKey(cfg.seed)
     ckpt = Checkpointer(run_dir / CHECKPOINT_DIR, keep=cfg.checkpoint.keep)
     config = cfg.to_dict()
     (run_dir / "config.json").write_text(json.dumps(config, indent=2))
 
-    mesh = scale.mesh()
     shardings = None
     if mesh is not None:
         abstract = jax.eval_shape(learner.init, init_key)

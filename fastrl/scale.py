@@ -15,6 +15,8 @@ Agent ``i`` uses the same RNG stream as a single run with its seed, so it reprod
 one-axis mesh: an agent batch that divides evenly is split by agent; otherwise the env batch
 inside the state is split by environment and everything else is replicated. XLA inserts the
 gradient all-reduce; the math is that of the one-device program up to summation order.
+Learners that split their own work (``learner_splits``: PPO) get the mesh and use ``shard_map``
+for the env step and the minibatch gradients, which XLA's automatic partitioning does not split.
 """
 
 from __future__ import annotations
@@ -153,6 +155,23 @@ def mesh() -> Mesh | None:
     """A one-axis mesh ``("devices",)`` over all devices, or None with a single device."""
     devices = jax.devices()
     return Mesh(np.array(devices), ("devices",)) if len(devices) > 1 else None
+
+
+def learner_splits(cfg: RunConfig, m: Mesh | None) -> bool:
+    """Whether a single run's learner should split its own work over mesh ``m``'s devices.
+
+    Learners that can (``agents.splits_over_devices``: PPO) step each device's slice of the
+    environments and compute each device's share of every minibatch gradient explicitly
+    (``shard_map``), which XLA's automatic partitioning does not find: it ran PPO's minibatch
+    gradients in full on every device, so 2 CPU devices were no faster than one. That needs the
+    env batch and the minibatch to divide evenly over the devices; otherwise the run is laid out
+    by ``state_shardings`` alone.
+    """
+    if m is None or not agents.splits_over_devices(cfg.algo_name):
+        return False
+    ndev = m.devices.size
+    algo = cfg.algo
+    return algo.num_envs % ndev == 0 and algo.minibatch_size % ndev == 0
 
 
 def state_shardings(state: Any, m: Mesh, n_agents: int, num_envs: int | None) -> Any:

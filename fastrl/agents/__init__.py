@@ -8,6 +8,7 @@ simulator fused in. The runner jits a ``lax.scan`` of ``update``; a checkpoint i
 from __future__ import annotations
 
 import dataclasses
+import inspect
 
 from fastrl.agents.apg import APGConfig, UnsuitableEnvError, make_apg
 from fastrl.agents.base import Learner, PolicyParams
@@ -34,11 +35,20 @@ def config_class(name: str):
         raise ValueError(f"unknown algorithm {name!r}; choose one of: {choices}") from None
 
 
-def make_learner(name: str, config, env, network: NetworkConfig, total_updates: int) -> Learner:
-    """Builds the learner ``name`` from its config dataclass."""
+def splits_over_devices(name: str) -> bool:
+    """Whether learner ``name`` takes a device mesh and splits its env batch and minibatches itself."""
+    return "mesh" in inspect.signature(ALGORITHMS[name][1]).parameters
+
+
+def make_learner(name: str, config, env, network: NetworkConfig, total_updates: int, mesh=None) -> Learner:
+    """Builds the learner ``name`` from its config dataclass (``mesh``: see ``splits_over_devices``)."""
     cls, factory = ALGORITHMS[name]
     if not isinstance(config, cls):
         raise TypeError(f"{name} expects a {cls.__name__}, got {type(config).__name__}")
+    if mesh is not None:
+        if not splits_over_devices(name):
+            raise ValueError(f"{name} does not split its work over devices itself; pass mesh=None")
+        return factory(config, env, network, total_updates, mesh=mesh)
     return factory(config, env, network, total_updates)
 
 

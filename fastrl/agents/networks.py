@@ -110,4 +110,10 @@ class TanhGaussian:
     def squashed_entropy(self, out: jax.Array, key: jax.Array) -> jax.Array:
         """Entropy of tanh(u) (up to the constant log of the bounds' half-widths), estimated at
         one reparameterised sample of u, so it has gradients through both mean and scale."""
-        return self.entropy(out) + jnp.sum(self._log_jacobian(self.sample_raw(out, key)), axis=-1)
+        mean, _ = self._split(out)
+        return self.squashed_entropy_at(out, jax.random.normal(key, mean.shape, mean.dtype))
+
+    def squashed_entropy_at(self, out: jax.Array, noise: jax.Array) -> jax.Array:
+        """``squashed_entropy`` at the given standard-normal draws (shaped like the mean)."""
+        mean, std = self._split(out)
+        return self.entropy(out) + jnp.sum(self._log_jacobian(mean + std * noise), axis=-1)

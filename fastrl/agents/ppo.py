@@ -20,9 +20,17 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import optax
+from jax.sharding import Mesh
 
 from fastrl.agents import normalizer
-from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
+from fastrl.agents.base import (
+    DEVICE_AXIS,
+    Learner,
+    PolicyParams,
+    make_act,
+    observation_normalizer,
+    over_devices,
+)
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
 from fastrl.envs.base import Env, State
 from fastrl.physics.dataclass import pytree_dataclass
@@ -172,7 +180,9 @@ def gae(
     return adv, adv + values
 
 
-def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates: int = 1) -> Learner:
+def make_ppo(
+    config: PPOConfig, env: Env, network: NetworkConfig, total_updates: int = 1, mesh: Mesh | None = None
+) -> Learner:
     """Builds PPO for ``env``.
 
     Args:
@@ -180,7 +190,19 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
       env: a fastrl env (batched here with vmap).
       network: network sizes.
       total_updates: iterations the run will take (sets the linear learning-rate decay).
+      mesh: a one-axis mesh (``base.DEVICE_AXIS``) to split the work over: each device steps its
+        slice of the environments and computes the gradient of its half of every minibatch;
+        gradients are averaged, so the result is the one-device one up to summation order. The
+        env batch and the minibatches must divide evenly. None: no explicit split.
     """
+    if mesh is not None:
+        ndev = mesh.devices.size
+        mb = config.minibatch_size
+        if config.num_envs % ndev or mb % ndev:
+            raise ValueError(
+                f"algo.num_envs={config.num_envs} and the minibatch size {mb} must divide evenly over "
+                f"{ndev} devices"
+            )
     obs_size, nu = env.observation_size, env.action_size
     low, high = (jnp.asarray(b) for b in env.action_bounds)
     dist = TanhGaussian(low, high, config.init_std)
@@ -193,7 +215,8 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
         lr = config.learning_rate
     optimizer = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(lr))
     env_reset = jax.vmap(env.reset)
-    env_step = jax.vmap(env.step)
+    env_step = over_devices(jax.vmap(env.step), mesh)
+    axis = None if mesh is None else DEVICE_AXIS
 
     norm = observation_normalizer(config.normalize_observations)
 
@@ -222,13 +245,21 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
 
         return jax.lax.scan(one, state.env_state, jax.random.split(key, config.unroll_length))
 
-    def loss_fn(params, stats, batch, adv, targets, old_values, key):
+    def global_mean(x):
+        """Mean over the minibatch (all devices' shares of it, which are of equal size)."""
+        m = jnp.mean(x)
+        return m if axis is None else jax.lax.pmean(m, axis)
+
+    def loss_fn(params, stats, batch, adv, targets, old_values, ent_noise):
+        # Under a mesh this sees one device's share of the minibatch: its losses are means over
+        # that share, and the gradients are averaged across devices (``minibatch_grads``).
         obs = norm(stats, batch.obs)
         out = policy_net.apply(params["policy"], obs)
         log_prob = dist.log_prob(out, batch.raw_action)
         ratio = jnp.exp(log_prob - batch.log_prob)
         if config.normalize_advantages:
-            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+            mean = global_mean(adv)
+            adv = (adv - mean) / (jnp.sqrt(global_mean((adv - mean) ** 2)) + 1e-8)
         clipped = jnp.clip(ratio, 1 - config.clip_eps, 1 + config.clip_eps)
         policy_loss = -jnp.mean(jnp.minimum(ratio * adv, clipped * adv))
         value = value_net.apply(params["value"], obs)[..., 0]
@@ -238,7 +269,7 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
             v_loss = jnp.maximum(v_loss, (v_clip - targets) ** 2)
         value_loss = 0.5 * jnp.mean(v_loss)
         if config.entropy_estimate == "squashed":
-            entropy = jnp.mean(dist.squashed_entropy(out, key))
+            entropy = jnp.mean(dist.squashed_entropy_at(out, ent_noise))
         else:
             entropy = jnp.mean(dist.entropy(out))
         total = policy_loss + config.value_cost * value_loss - config.entropy_cost * entropy
@@ -251,6 +282,22 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
         }
         return total, stats_out
 
+    def minibatch_grads(params, stats, batch, adv, targets, old_values, ent_noise):
+        grads, info = jax.grad(loss_fn, has_aux=True)(
+            params, stats, batch, adv, targets, old_values, ent_noise
+        )
+        if axis is not None:
+            grads, info = jax.lax.pmean((grads, info), axis)
+        return grads, info
+
+    if mesh is not None:
+        replicated = jax.sharding.PartitionSpec()
+        split = jax.sharding.PartitionSpec(DEVICE_AXIS)
+        minibatch_grads = jax.shard_map(
+            minibatch_grads, mesh=mesh, in_specs=(replicated, replicated, split, split, split, split, split),
+            out_specs=replicated, check_vma=False,
+        )  # fmt: skip
+
     def sgd(state: PPOState, data, key):
         flat = jax.tree.map(lambda x: x.reshape((config.batch_size,) + x.shape[2:]), data)
 
@@ -262,18 +309,20 @@ def make_ppo(config: PPOConfig, env: Env, network: NetworkConfig, total_updates:
 
             def minibatch(carry, mb):
                 params, opt_state = carry
-                (batch, adv, targets, old_values), k_ent = mb
-                grads, info = jax.grad(loss_fn, has_aux=True)(
-                    params, state.obs_stats, batch, adv, targets, old_values, k_ent
-                )
+                (batch, adv, targets, old_values), noise = mb
+                grads, info = minibatch_grads(params, state.obs_stats, batch, adv, targets, old_values, noise)
                 updates, opt_state = optimizer.update(grads, opt_state, params)
                 info["grad_norm"] = optax.tree.norm(grads)
                 return (optax.apply_updates(params, updates), opt_state), info
 
-            ent_keys = None  # only the squashed estimate samples
+            # Only the squashed entropy estimate samples: one draw per sample of each minibatch,
+            # made here whole so that a split over devices draws the same numbers.
+            noise = jnp.zeros((config.num_minibatches, config.minibatch_size, 0))
             if config.entropy_estimate == "squashed":
                 ent_keys = jax.random.split(jax.random.fold_in(k, 1), config.num_minibatches)
-            return jax.lax.scan(minibatch, (params, opt_state), (shuffled, ent_keys))
+                shape = (config.minibatch_size, nu)
+                noise = jax.vmap(lambda kk: jax.random.normal(kk, shape))(ent_keys)
+            return jax.lax.scan(minibatch, (params, opt_state), (shuffled, noise))
 
         keys = jax.random.split(key, config.update_epochs)
         (params, opt_state), info = jax.lax.scan(epoch, (state.params, state.opt_state), keys)
