@@ -215,3 +215,23 @@ def test_load_policy_and_evaluate_cli(tmp_path, capsys):
     assert "return" in out and "+-" in out
     assert np.load(tmp_path / "ep.npz")["qpos"].shape[1] == 2
     assert evaluate.main([str(tmp_path / "nothing")]) == 2
+
+
+def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
+    """The command line gives PPO one CPU device per core, as many as divide its batches."""
+    from fastrl import train
+
+    monkeypatch.delenv("FASTRL_CPU_DEVICES", raising=False)
+    ppo = typed(["env=inverted_pendulum", "algo=ppo", "algo.num_envs=6", "algo.unroll_length=4"])
+    assert ppo.algo.minibatch_size % 2 == 0
+    assert train.cpu_devices(ppo, 2) == 2
+    assert train.cpu_devices(ppo, 4) == 3  # 4 does not divide 6 envs; 3 divides both batches
+    assert train.cpu_devices(ppo, 1) == 1
+    assert train.cpu_devices(typed(["env=inverted_pendulum", "algo=sac"]), 2) == 1
+    seeds = typed(["env=inverted_pendulum", "algo=ppo", "train.num_seeds=2"])
+    assert train.cpu_devices(seeds, 2) == 1  # agent batches keep one device
+    monkeypatch.setenv("FASTRL_CPU_DEVICES", "1")
+    assert train.cpu_devices(ppo, 2) == 1
+    monkeypatch.setenv("FASTRL_CPU_DEVICES", "two")
+    with pytest.raises(ConfigError, match="FASTRL_CPU_DEVICES='two'"):
+        train.cpu_devices(ppo, 2)
