@@ -7,9 +7,13 @@
    auto-reset, rewards and observations: the full env step) under a jitted scan with uniform
    random actions, beside MuJoCo C through EnvPool's ``<Task>-v4`` with 2 threads (from
    ``.venv-peers``), which uses Gymnasium's models with the same integrators and frame skips.
+   The same fastrl rows again with the batch split over 2 CPU devices (one program copy per
+   core, ``shard_map``), in a child process started with
+   ``XLA_FLAGS=--xla_force_host_platform_device_count=2``.
 2. A CleanRL-style random-policy loop (numpy actions in, numpy observations out) over
    ``fastrl.envs.make_vec("ant", N)`` vs ``gymnasium.vector.SyncVectorEnv`` of Gymnasium's own
-   ``Ant-v5``, same N: steps/s of each and their ratio.
+   ``Ant-v5``, same N (64 and 1024): steps/s of each and their ratio, with make_vec on one
+   device and on 2 CPU devices (child process).
 
 Writes ``experiments/results/env_throughput.{json,md}``.
 """
@@ -19,7 +23,9 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
+import os
 import subprocess
+import sys
 import time
 
 import gymnasium
@@ -44,10 +50,12 @@ def bench_fastrl(name: str, batch: int, steps: int) -> dict:
     low, high = (jnp.asarray(b) for b in env.action_bounds)
     state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), batch))
 
+    step = envs.over_devices(jax.vmap(env.step), envs.batch_mesh(batch))
+
     def run(state, key):
         def one(s, k):
             a = jax.random.uniform(k, (batch, env.action_size), minval=low, maxval=high)
-            return jax.vmap(env.step)(s, a), None
+            return step(s, a), None
 
         return jax.lax.scan(one, state, jax.random.split(key, steps))[0]
 
@@ -58,7 +66,8 @@ def bench_fastrl(name: str, batch: int, steps: int) -> dict:
     t0 = time.perf_counter()
     state = jax.block_until_ready(compiled(state, jax.random.PRNGKey(2)))
     wall = time.perf_counter() - t0
-    return {"engine": "fastrl", "env": name, "batch": batch, "control_steps_per_s": batch * steps / wall,
+    engine = "fastrl" if jax.device_count() == 1 else f"fastrl, {jax.device_count()} devices"
+    return {"engine": engine, "env": name, "batch": batch, "control_steps_per_s": batch * steps / wall,
             "compile_s": compile_s, "diverged": float(state.metrics["diverged"].mean())}  # fmt: skip
 
 
@@ -85,16 +94,23 @@ def cleanrl_loop(venv, steps: int, seed: int = 0) -> float:
     return venv.num_envs * steps / (time.perf_counter() - t0)
 
 
-def bench_vector(num_envs: int, steps: int) -> dict:
+def bench_vector(num_envs: int, steps: int, gym: bool = True) -> dict:
     fast = envs.make_vec("ant", num_envs=num_envs, seed=0)
-    gym = gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make("Ant-v5") for _ in range(num_envs)])
-    f, g = cleanrl_loop(fast, steps), cleanrl_loop(gym, max(2, steps // 4))
-    return {
-        "num_envs": num_envs,
-        "fastrl_make_vec_steps_per_s": f,
-        "gymnasium_sync_steps_per_s": g,
-        "ratio": f / g,
-    }
+    f = cleanrl_loop(fast, steps)
+    row = {"num_envs": num_envs, "devices": jax.device_count(), "fastrl_make_vec_steps_per_s": f}
+    if gym:
+        sync = gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make("Ant-v5") for _ in range(num_envs)])
+        g = cleanrl_loop(sync, max(2, steps // 4))
+        row.update(gymnasium_sync_steps_per_s=g, ratio=f / g)
+    return row
+
+
+def in_child(job: dict, devices: int) -> list[dict]:
+    """Runs ``job`` (fastrl env rows and make_vec loops) in a child process with ``devices`` CPU devices."""
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+    cmd = [sys.executable, __file__, "--worker", json.dumps(job)]
+    out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True, timeout=7200)
+    return [json.loads(line[4:]) for line in out.stdout.splitlines() if line.startswith("ROW ")]
 
 
 def main() -> None:
@@ -105,7 +121,15 @@ def main() -> None:
     parser.add_argument("--envs", nargs="*", default=None, help="subset of env names")
     parser.add_argument("--batches", type=int, nargs="*", default=[1024, 4096], help="batch sizes")
     parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
+    parser.add_argument("--worker", help=argparse.SUPPRESS)  # child process of in_child
     args = parser.parse_args()
+    if args.worker:
+        job = json.loads(args.worker)
+        for name, batch in job["envs"]:
+            print("ROW " + json.dumps(bench_fastrl(name, batch, job["steps"])), flush=True)
+        for n in job["vector"]:
+            print("ROW " + json.dumps(bench_vector(n, job["vector_steps"], gym=False)), flush=True)
+        return
     names = args.envs or (["inverted_pendulum"] if args.quick else envs.names())
     batches = [8] if args.quick else args.batches
     steps = 2 if args.quick else args.steps
@@ -117,28 +141,44 @@ def main() -> None:
             r["envpool_control_steps_per_s"] = peer["control_steps_per_s"] if peer else None
             rows.append(r)
             print(json.dumps(r), flush=True)
-    vector = bench_vector(4 if args.quick else 64, 3 if args.quick else 50)
+    vector_sizes, vector_steps = ([4], 3) if args.quick else ([64, 1024], 20)
+    vector = [bench_vector(n, vector_steps) for n in vector_sizes]
     print(json.dumps(vector))
+    job = {"envs": [[r["env"], r["batch"]] for r in rows], "steps": steps, "vector": vector_sizes,
+           "vector_steps": vector_steps}  # fmt: skip
+    split = in_child(job, 2)
+    split_envs = {(r["env"], r["batch"]): r for r in split if "env" in r}
+    for r in rows:
+        r["split_2_devices"] = split_envs[r["env"], r["batch"]]
+    for v, r in zip(vector, [r for r in split if "num_envs" in r], strict=True):
+        v["fastrl_make_vec_2_devices_steps_per_s"] = r["fastrl_make_vec_steps_per_s"]
+        v["ratio_2_devices"] = r["fastrl_make_vec_steps_per_s"] / v["gymnasium_sync_steps_per_s"]
     suffix = "_quick" if args.quick else ""
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {"machine": "2-core x86_64 CPU, no accelerator", "jax": jax.__version__}
     result = {"meta": meta, "envs": rows, "vector": vector}
     (args.out / f"env_throughput{suffix}.json").write_text(json.dumps(result, indent=1))
     lines = ["# Env throughput (control steps/s, this machine, one run)", "",
-             "| env | batch | fastrl | EnvPool (MuJoCo C, 2 threads) | fastrl / EnvPool | compile s |",
-             "| --- | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
+             "Command: `python experiments/bench_envs.py`. fastrl: the full env step (physics, observation,",
+             "reward, auto-reset) on one CPU device, and split over 2 CPU devices (one per core).", "",
+             "| env | batch | fastrl | fastrl, 2 devices | EnvPool (MuJoCo C, 2 threads) | fastrl / EnvPool "
+             "| 2 devices / EnvPool | compile s |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
     for r in rows:
-        peer = r["envpool_control_steps_per_s"]
+        peer, two = r["envpool_control_steps_per_s"], r["split_2_devices"]["control_steps_per_s"]
         ratio = f"{r['control_steps_per_s'] / peer:.2f}" if peer else "-"
+        ratio2 = f"{two / peer:.2f}" if peer else "-"
         peer_s = f"{peer:,.0f}" if peer else "-"
-        lines.append(f"| {r['env']} | {r['batch']} | {r['control_steps_per_s']:,.0f} | {peer_s} | {ratio} | "
-                     f"{r['compile_s']:.1f} |")  # fmt: skip
-    lines += [
-        "",
-        f"CleanRL-style random loop, {vector['num_envs']} envs: fastrl make_vec('ant') "
-        f"{vector['fastrl_make_vec_steps_per_s']:,.0f} steps/s vs Gymnasium SyncVectorEnv(Ant-v5) "
-        f"{vector['gymnasium_sync_steps_per_s']:,.0f} steps/s: **{vector['ratio']:.1f}x**.",
-    ]
+        lines.append(f"| {r['env']} | {r['batch']} | {r['control_steps_per_s']:,.0f} | {two:,.0f} | {peer_s} | "
+                     f"{ratio} | {ratio2} | {r['compile_s']:.1f} |")  # fmt: skip
+    lines += ["", "CleanRL-style random loop (numpy actions in, numpy observations out) over fastrl "
+              "`make_vec('ant')` and Gymnasium's `SyncVectorEnv` of `Ant-v5`:", "",
+              "| envs | fastrl make_vec | make_vec, 2 devices | Gymnasium SyncVectorEnv | ratio | ratio, 2 devices |",
+              "| ---: | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
+    for v in vector:
+        lines.append(f"| {v['num_envs']} | {v['fastrl_make_vec_steps_per_s']:,.0f} | "
+                     f"{v['fastrl_make_vec_2_devices_steps_per_s']:,.0f} | {v['gymnasium_sync_steps_per_s']:,.0f} | "
+                     f"{v['ratio']:.2f}x | {v['ratio_2_devices']:.2f}x |")  # fmt: skip
     (args.out / f"env_throughput{suffix}.md").write_text("\n".join(lines) + "\n")
 
 

@@ -47,7 +47,9 @@ def test_stability_sweep_quick(tmp_path):
 def test_bench_envs_quick(tmp_path):
     result = _run_quick("bench_envs.py", tmp_path, "env_throughput_quick.json")
     assert all(r["control_steps_per_s"] > 0 and r["diverged"] == 0 for r in result["envs"])
-    assert result["vector"]["ratio"] > 0
+    split = [r["split_2_devices"] for r in result["envs"]]
+    assert all(r["engine"] == "fastrl, 2 devices" and r["control_steps_per_s"] > 0 for r in split)
+    assert all(v["ratio"] > 0 and v["ratio_2_devices"] > 0 for v in result["vector"])
 
 
 def test_speed_accuracy_quick(tmp_path):

@@ -6,9 +6,9 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
-from jax.sharding import Mesh, PartitionSpec
 
 from fastrl.agents import normalizer
+from fastrl.envs.base import DEVICE_AXIS, over_devices  # noqa: F401  (learners import them from here)
 from fastrl.physics.dataclass import pytree_dataclass
 
 
@@ -57,22 +57,3 @@ def make_act(policy_net, dist, norm, to_env: Callable[[jax.Array], jax.Array] | 
         return action if to_env is None else to_env(action)
 
     return act
-
-
-DEVICE_AXIS = "devices"
-
-
-def over_devices(fn: Callable, mesh: Mesh | None, *, out_split: bool = True) -> Callable:
-    """``fn`` with every argument's leading (batch) axis split over ``mesh``'s devices.
-
-    Each device runs ``fn`` on its slice (``shard_map``), so a per-environment function such as
-    a vmapped ``env.step`` runs on all devices at once with no communication. With
-    ``out_split=False`` the result is replicated instead (``fn`` must then all-reduce it, e.g.
-    with ``jax.lax.pmean(..., DEVICE_AXIS)``). With ``mesh=None`` this is ``fn`` itself.
-    """
-    if mesh is None:
-        return fn
-    return jax.shard_map(
-        fn, mesh=mesh, in_specs=PartitionSpec(DEVICE_AXIS),
-        out_specs=PartitionSpec(DEVICE_AXIS) if out_split else PartitionSpec(), check_vma=False,
-    )  # fmt: skip

@@ -1,6 +1,6 @@
 """Functional environments with Gymnasium v5 semantics, and a batched Gymnasium vector API."""
 
-from fastrl.envs.base import Env, Randomization, State
+from fastrl.envs.base import Env, Randomization, State, batch_mesh, over_devices
 from fastrl.envs.registry import make, names, register
 from fastrl.envs.vector import GymEnv, VectorEnv, make_gym, make_vec
 
@@ -10,9 +10,11 @@ __all__ = [
     "Randomization",
     "State",
     "VectorEnv",
+    "batch_mesh",
     "make",
     "make_gym",
     "make_vec",
     "names",
+    "over_devices",
     "register",
 ]

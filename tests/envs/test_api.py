@@ -136,3 +136,40 @@ def test_ant_can_leave_contact_forces_out_of_its_observation():
     state = full.reset(jax.random.PRNGKey(0))
     np.testing.assert_array_equal(short._observe(full.model, state.data), state.obs[:27])
     assert envs.make("ant_goal", include_cfrc_ext_in_observation=False).observation_size == 31
+
+
+_SPLIT_SCRIPT = """
+import json, numpy as np, jax
+from fastrl import envs
+v = envs.make_vec("inverted_pendulum", num_envs=4, seed=0)
+v.reset(seed=3)
+rng = np.random.default_rng(0)
+out = []
+for _ in range(30):
+    obs, reward, term, trunc, info = v.step(rng.uniform(-3, 3, (4, 1)).astype(np.float32))
+    out.append([obs.tolist(), reward.tolist(), term.tolist()])
+print(json.dumps({"devices": jax.device_count(), "sharding": str(v._state.obs.sharding), "out": out}))
+"""
+
+
+def test_vector_env_splits_over_two_cpu_devices_with_the_same_results():
+    """With 2 devices each steps half the envs; observations, rewards and resets are unchanged."""
+    import json
+    import os
+    import pathlib
+    import subprocess
+    import sys
+
+    root = pathlib.Path(__file__).resolve().parents[2]
+    runs = {}
+    for n in (1, 2):
+        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}")
+        proc = subprocess.run([sys.executable, "-c", _SPLIT_SCRIPT], env=env, cwd=root, check=True,
+                              capture_output=True, text=True, timeout=300)  # fmt: skip
+        runs[n] = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert runs[2]["devices"] == 2 and "devices" in runs[2]["sharding"]
+    assert any(step[2] != [False] * 4 for step in runs[1]["out"])  # episodes ended and reset
+    for a, b in zip(runs[1]["out"], runs[2]["out"], strict=True):
+        np.testing.assert_allclose(np.array(a[0]), np.array(b[0]), rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(a[1], b[1], rtol=1e-6)
+        assert a[2] == b[2]
