@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import pathlib
 import os
+import pathlib
 import subprocess
 import sys
 import time
@@ -169,15 +169,17 @@ def main() -> None:
         ratio = f"{r['control_steps_per_s'] / peer:.2f}" if peer else "-"
         ratio2 = f"{two / peer:.2f}" if peer else "-"
         peer_s = f"{peer:,.0f}" if peer else "-"
-        lines.append(f"| {r['env']} | {r['batch']} | {r['control_steps_per_s']:,.0f} | {two:,.0f} | {peer_s} | "
-                     f"{ratio} | {ratio2} | {r['compile_s']:.1f} |")  # fmt: skip
+        lines.append(f"| {r['env']} | {r['batch']} | {r['control_steps_per_s']:,.0f} | {two:,.0f} | "
+                     f"{peer_s} | {ratio} | {ratio2} | {r['compile_s']:.1f} |")  # fmt: skip
     lines += ["", "CleanRL-style random loop (numpy actions in, numpy observations out) over fastrl "
               "`make_vec('ant')` and Gymnasium's `SyncVectorEnv` of `Ant-v5`:", "",
-              "| envs | fastrl make_vec | make_vec, 2 devices | Gymnasium SyncVectorEnv | ratio | ratio, 2 devices |",
+              "| envs | fastrl make_vec | make_vec, 2 devices | Gymnasium SyncVectorEnv | ratio "
+              "| ratio, 2 devices |",
               "| ---: | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
     for v in vector:
         lines.append(f"| {v['num_envs']} | {v['fastrl_make_vec_steps_per_s']:,.0f} | "
-                     f"{v['fastrl_make_vec_2_devices_steps_per_s']:,.0f} | {v['gymnasium_sync_steps_per_s']:,.0f} | "
+                     f"{v['fastrl_make_vec_2_devices_steps_per_s']:,.0f} | "
+                     f"{v['gymnasium_sync_steps_per_s']:,.0f} | "
                      f"{v['ratio']:.2f}x | {v['ratio_2_devices']:.2f}x |")  # fmt: skip
     (args.out / f"env_throughput{suffix}.md").write_text("\n".join(lines) + "\n")
 
