@@ -159,7 +159,7 @@ def main() -> None:
     result = {"meta": meta, "envs": rows, "vector": vector}
     (args.out / f"env_throughput{suffix}.json").write_text(json.dumps(result, indent=1))
     lines = ["# Env throughput (control steps/s, this machine, one run)", "",
-             f"Command: `python experiments/bench_envs.py {' '.join(sys.argv[1:])}`".replace(" `", "`") + ". "
+             f"Command: `{' '.join(['python experiments/bench_envs.py', *sys.argv[1:]])}`. "
              "fastrl: the full env step (physics, observation,",
              "reward, auto-reset) on one CPU device, and split over 2 CPU devices (one per core).", "",
              "| env | batch | fastrl | fastrl, 2 devices | EnvPool (MuJoCo C, 2 threads) | fastrl / EnvPool "
