@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fastrl import physics
+from fastrl import envs, physics
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ANT = ROOT / "fastrl" / "assets" / "ant.xml"
@@ -43,7 +43,6 @@ def bench_fastrl(
     integrator: str, batch: int, control_steps: int, iterations: int | None = None, substeps: int = 5
 ) -> dict:
     m = physics.load_mjcf(ANT, integrator=integrator, solver_iterations=iterations)
-    ndev = jax.device_count()
     key = jax.random.PRNGKey(0)
     qvel = 0.1 * jax.random.normal(key, (batch, m.nv))
     data = jax.vmap(lambda v: physics.make_data(m, qpos=QPOS0, qvel=v))(qvel)
@@ -52,14 +51,10 @@ def bench_fastrl(
     def control_step(d, u):
         return jax.lax.fori_loop(0, substeps, lambda _, d: physics.step(m, d, u), d)
 
-    def run(d, ctrl):
-        return jax.lax.scan(lambda d, u: (jax.vmap(control_step)(d, u), None), d, ctrl)[0]
+    one = envs.over_devices(jax.vmap(control_step), envs.batch_mesh(batch))  # with 2+ devices, a slice each
 
-    if ndev > 1:  # each device runs its slice of the batch
-        mesh = jax.sharding.Mesh(np.array(jax.devices()), ("devices",))
-        split = jax.sharding.PartitionSpec("devices")
-        run = jax.shard_map(run, mesh=mesh, in_specs=(split, jax.sharding.PartitionSpec(None, "devices")),
-                            out_specs=split, check_vma=False)  # fmt: skip
+    def run(d, ctrl):
+        return jax.lax.scan(lambda d, u: (one(d, u), None), d, ctrl)[0]
 
     t0 = time.perf_counter()
     compiled = jax.jit(run).lower(data, ctrl).compile()
@@ -70,7 +65,7 @@ def bench_fastrl(
     wall = time.perf_counter() - t0
     return {
         "engine": f"fastrl {integrator} 0.01x{substeps}, {m.solver_iterations} iters"
-        + (f", {ndev} devices" if ndev > 1 else ""),
+        + (f", {jax.device_count()} devices" if jax.device_count() > 1 else ""),
         "batch": batch,
         "control_steps_per_s": batch * control_steps / wall,
         "compile_s": compile_s,

@@ -34,6 +34,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from fastrl import agents
 from fastrl.agents.base import Learner
 from fastrl.config import ConfigError, RunConfig
+from fastrl.envs.base import DEVICE_AXIS
 
 
 def sweepable_fields(algo_name: str) -> list[str]:
@@ -152,9 +153,9 @@ def to_host(tree: Any) -> Any:
 
 
 def mesh() -> Mesh | None:
-    """A one-axis mesh ``("devices",)`` over all devices, or None with a single device."""
+    """A one-axis mesh (axis ``DEVICE_AXIS``) over all devices, or None with a single device."""
     devices = jax.devices()
-    return Mesh(np.array(devices), ("devices",)) if len(devices) > 1 else None
+    return Mesh(np.array(devices), (DEVICE_AXIS,)) if len(devices) > 1 else None
 
 
 def learner_splits(cfg: RunConfig, m: Mesh | None) -> bool:
@@ -169,9 +170,7 @@ def learner_splits(cfg: RunConfig, m: Mesh | None) -> bool:
     """
     if m is None or not agents.splits_over_devices(cfg.algo_name):
         return False
-    ndev = m.devices.size
-    algo = cfg.algo
-    return algo.num_envs % ndev == 0 and algo.minibatch_size % ndev == 0
+    return cfg.algo.splits_evenly(m.devices.size)
 
 
 def state_shardings(state: Any, m: Mesh, n_agents: int, num_envs: int | None) -> Any:
@@ -191,13 +190,13 @@ def state_shardings(state: Any, m: Mesh, n_agents: int, num_envs: int | None) ->
         if x.size == 0:  # empty buffers (no sites, no contacts): nothing to split
             return replicated
         if by_agent:
-            return NamedSharding(m, PartitionSpec("devices"))
+            return NamedSharding(m, PartitionSpec(DEVICE_AXIS))
         under_env = any(getattr(p, "name", None) == "env_state" for p in path)
         if (
             under_env and num_envs and num_envs % ndev == 0
             and x.ndim > axis and x.shape[axis] == num_envs
         ):  # fmt: skip
-            return NamedSharding(m, PartitionSpec(*([None] * axis), "devices"))
+            return NamedSharding(m, PartitionSpec(*([None] * axis), DEVICE_AXIS))
         return replicated
 
     return jax.tree_util.tree_map_with_path(one, state)

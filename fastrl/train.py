@@ -90,7 +90,7 @@ def cpu_devices(rc: RunConfig, cores: int) -> int:
     if rc.train.num_seeds > 1 or rc.train.vmap_sweep or not agents.splits_over_devices(rc.algo_name):
         return 1
     n = max(1, cores)
-    while rc.algo.num_envs % n or rc.algo.minibatch_size % n:
+    while not rc.algo.splits_evenly(n):
         n -= 1
     return n
 

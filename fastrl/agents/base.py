@@ -8,7 +8,6 @@ from typing import NamedTuple
 import jax
 
 from fastrl.agents import normalizer
-from fastrl.envs.base import DEVICE_AXIS, over_devices  # noqa: F401  (learners import them from here)
 from fastrl.physics.dataclass import pytree_dataclass
 
 

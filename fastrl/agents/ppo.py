@@ -23,16 +23,9 @@ import optax
 from jax.sharding import Mesh
 
 from fastrl.agents import normalizer
-from fastrl.agents.base import (
-    DEVICE_AXIS,
-    Learner,
-    PolicyParams,
-    make_act,
-    observation_normalizer,
-    over_devices,
-)
+from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
-from fastrl.envs.base import Env, State
+from fastrl.envs.base import DEVICE_AXIS, Env, State, over_devices
 from fastrl.physics.dataclass import pytree_dataclass
 
 
@@ -108,6 +101,10 @@ class PPOConfig:
     @property
     def batch_size(self) -> int:
         return int(self.num_envs) * int(self.unroll_length)
+
+    def splits_evenly(self, devices: int) -> bool:
+        """Whether the env batch and the minibatch divide evenly over ``devices`` devices."""
+        return self.num_envs % devices == 0 and self.minibatch_size % devices == 0
 
     @property
     def minibatch_size(self) -> int:
@@ -195,14 +192,11 @@ def make_ppo(
         gradients are averaged, so the result is the one-device one up to summation order. The
         env batch and the minibatches must divide evenly. None: no explicit split.
     """
-    if mesh is not None:
-        ndev = mesh.devices.size
-        mb = config.minibatch_size
-        if config.num_envs % ndev or mb % ndev:
-            raise ValueError(
-                f"algo.num_envs={config.num_envs} and the minibatch size {mb} must divide evenly over "
-                f"{ndev} devices"
-            )
+    if mesh is not None and not config.splits_evenly(mesh.devices.size):
+        raise ValueError(
+            f"algo.num_envs={config.num_envs} and the minibatch size {config.minibatch_size} must "
+            f"divide evenly over {mesh.devices.size} devices"
+        )
     obs_size, nu = env.observation_size, env.action_size
     low, high = (jnp.asarray(b) for b in env.action_bounds)
     dist = TanhGaussian(low, high, config.init_std)
