@@ -234,7 +234,12 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
     t0 = time.perf_counter()
     compiled = jax.jit(run_chunk, donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - t0
-    evaluate = agents.make_evaluator(env, learner.act, cfg.train.eval_envs)
+    # A single run's evaluation steps its envs on every device (an Ant evaluation is 1000
+    # sequential steps of a small batch: on one of 2 CPU devices it took ~12 s per chunk).
+    eval_mesh = (
+        mesh if n_agents == 1 and mesh is not None and cfg.train.eval_envs % mesh.devices.size == 0 else None
+    )
+    evaluate = agents.make_evaluator(env, learner.act, cfg.train.eval_envs, mesh=eval_mesh)
     evaluate = jax.jit(evaluate if n_agents == 1 else jax.vmap(evaluate))
     write_viewer = None
     if cfg.logger.viewer_every:  # a rollout's 3D page every N chunks (agent 0 of a batch)

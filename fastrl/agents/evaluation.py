@@ -4,22 +4,26 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jax.sharding import Mesh
 
-from fastrl.envs.base import Env
+from fastrl.envs.base import Env, over_devices
 
 
-def make_evaluator(env: Env, act, num_envs: int):
+def make_evaluator(env: Env, act, num_envs: int, mesh: Mesh | None = None):
     """Returns ``evaluate(policy_params, key) -> (returns, lengths, final)``.
 
     Each env runs until its first episode ends (termination or the time limit); later
     auto-reset episodes are masked out. ``act(policy_params, obs)`` must be deterministic.
     ``returns`` and ``lengths`` are (num_envs,); ``final`` maps each of the env's
     ``eval_metrics`` (e.g. ``success`` of a goal-reaching task) to its (num_envs,) value at the
-    episode's last step.
+    episode's last step. ``mesh``: split the environments over its devices (``num_envs`` must
+    divide evenly), each device stepping its slice; None steps them all on one device.
     """
+    if mesh is not None and num_envs % mesh.devices.size:
+        raise ValueError(f"{num_envs} evaluation envs do not divide over {mesh.devices.size} devices")
     names = tuple(getattr(env, "eval_metrics", ()))
     reset = jax.vmap(env.reset)
-    step = jax.vmap(env.step)
+    step = over_devices(jax.vmap(env.step), mesh)
 
     def evaluate(policy_params, key):
         state = reset(jax.random.split(key, num_envs))

@@ -56,6 +56,12 @@ class PPOConfig:
       reward_scaling          rewards are multiplied by this in the losses
       normalize_observations  learn running observation statistics and normalise inputs
       normalize_advantages    standardise advantages per minibatch
+      recompute_advantages    recompute values and GAE with the current value network before
+                              every epoch (Andrychowicz et al. 2021, "What matters in on-policy
+                              RL"; Brax does it per minibatch), instead of once per iteration
+                              from the network that collected the data. Costs one value-network
+                              forward pass over the batch per epoch. Truncated steps keep the
+                              bootstrap value computed at collection time.
     """
 
     num_envs: int = 1024
@@ -76,6 +82,7 @@ class PPOConfig:
     reward_scaling: float = 1.0
     normalize_observations: bool = True
     normalize_advantages: bool = True
+    recompute_advantages: bool = False
 
     def __post_init__(self):
         for name in ("num_envs", "unroll_length", "num_minibatches", "update_epochs"):
@@ -292,11 +299,32 @@ def make_ppo(
             out_specs=replicated, check_vma=False,
         )  # fmt: skip
 
-    def sgd(state: PPOState, data, key):
-        flat = jax.tree.map(lambda x: x.reshape((config.batch_size,) + x.shape[2:]), data)
+    def estimate(value_params, stats, traj: Transition, final_values: jax.Array):
+        """Values, advantages and targets of a rollout under ``value_params``.
+
+        ``final_values`` (T, N): values of each step's ``final_obs``. Where an episode went on,
+        the next step's value is read from ``values`` instead, so only the last step of the
+        rollout needs one more forward pass, made here.
+        """
+        value = lambda o: value_net.apply(value_params, norm(stats, o))[..., 0]  # noqa: E731
+        values = value(jnp.concatenate([traj.obs, traj.final_obs[-1:]]))
+        next_values = jnp.where(traj.done, final_values, values[1:])
+        rewards = traj.reward * config.reward_scaling
+        adv, targets = gae(
+            rewards, values[:-1], next_values, traj.terminated, traj.done, config.gamma, config.gae_lambda
+        )
+        return adv, targets, values[:-1]
+
+    def sgd(state: PPOState, traj: Transition, final_values: jax.Array, key):
+        flatten = lambda x: x.reshape((config.batch_size,) + x.shape[2:])  # noqa: E731
+        fixed = None
+        if not config.recompute_advantages:
+            fixed = estimate(state.params["value"], state.obs_stats, traj, final_values)
 
         def epoch(carry, k):
             params, opt_state = carry
+            adv, targets, values = fixed or estimate(params["value"], state.obs_stats, traj, final_values)
+            flat = jax.tree.map(flatten, (traj, adv, targets, values))
             perm = jax.random.permutation(k, config.batch_size)
             split = lambda x: x[perm].reshape((config.num_minibatches, -1) + x.shape[1:])  # noqa: E731
             shuffled = jax.tree.map(split, flat)
@@ -329,14 +357,9 @@ def make_ppo(
         if config.normalize_observations:
             stats = normalizer.update(stats, traj.obs)
         state = state.replace(obs_stats=stats)
-        value = lambda o: value_net.apply(state.params["value"], norm(stats, o))[..., 0]  # noqa: E731
-        values, next_values = value(traj.obs), value(traj.final_obs)
-        rewards = traj.reward * config.reward_scaling
-        adv, targets = gae(
-            rewards, values, next_values, traj.terminated, traj.done, config.gamma, config.gae_lambda
-        )
-        mb_data = (traj, adv, targets, values)
-        params, opt_state, info = sgd(state, mb_data, k_sgd)
+        # Values of the observations that ended episodes (final_obs where done), at collection.
+        final_values = value_net.apply(state.params["value"], norm(stats, traj.final_obs))[..., 0]
+        params, opt_state, info = sgd(state, traj, final_values, k_sgd)
         done = traj.done.astype(jnp.float32)
         n_done = jnp.sum(done)
         metrics = {f"loss/{k}": v for k, v in info.items()}

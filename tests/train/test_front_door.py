@@ -235,3 +235,25 @@ def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
     monkeypatch.setenv("FASTRL_CPU_DEVICES", "two")
     with pytest.raises(ConfigError, match="FASTRL_CPU_DEVICES='two'"):
         train.cpu_devices(ppo, 2)
+
+
+def test_cli_xla_flags_keep_what_the_user_set(monkeypatch):
+    from jax._src import xla_bridge
+
+    from fastrl import train
+
+    ppo = typed(["env=inverted_pendulum", "algo=ppo", "algo.num_envs=6", "algo.unroll_length=4"])
+    monkeypatch.setenv("FASTRL_CPU_DEVICES", "2")
+    monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
+    train._set_cpu_flags(ppo)
+    added = ["--xla_force_host_platform_device_count=2", "--xla_cpu_use_fusion_emitters=false"]
+    assert os.environ["XLA_FLAGS"].split() == ["--xla_dump_to=/tmp/x", *added]
+    mine = "--xla_force_host_platform_device_count=1 --xla_cpu_use_fusion_emitters=true"
+    monkeypatch.setenv("XLA_FLAGS", mine)
+    train._set_cpu_flags(ppo)
+    assert os.environ["XLA_FLAGS"] == mine
+    monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: True)  # too late to change
+    monkeypatch.setenv("XLA_FLAGS", "")
+    train._set_cpu_flags(ppo)
+    assert os.environ["XLA_FLAGS"] == ""

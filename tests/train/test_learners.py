@@ -111,3 +111,23 @@ def test_exact_resume(tmp_path, algo, env_name):
     a, b = _weights_of(tmp_path / "full"), _weights_of(tmp_path / "split")
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
+
+
+def _ppo_after_one_update(**overrides):
+    env = envs.make("inverted_pendulum")
+    cfg = agents.PPOConfig(num_envs=8, unroll_length=16, num_minibatches=2, **overrides)
+    net = agents.NetworkConfig(policy_hidden=(8,), value_hidden=(8,), activation="tanh")
+    learner = agents.make_learner("ppo", cfg, env, net, total_updates=1)
+    state, _ = jax.jit(learner.update)(learner.init(jax.random.PRNGKey(0)))
+    return jax.tree.leaves(state.params)
+
+
+def test_ppo_recomputed_advantages_match_on_the_first_epoch_and_then_move():
+    # The first epoch sees the collecting network either way; later epochs see the updated one.
+    once = _ppo_after_one_update(update_epochs=1)
+    again = _ppo_after_one_update(update_epochs=1, recompute_advantages=True)
+    for a, b in zip(once, again, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+    fixed = _ppo_after_one_update(update_epochs=3)
+    fresh = _ppo_after_one_update(update_epochs=3, recompute_advantages=True)
+    assert max(float(jnp.max(jnp.abs(a - b))) for a, b in zip(fixed, fresh, strict=True)) > 1e-5
