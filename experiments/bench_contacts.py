@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl import envs, physics
+from fastrl.xla_flags import peer_environ
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ANT = ROOT / "fastrl" / "assets" / "ant.xml"
@@ -87,7 +88,7 @@ def _peer(args: list[str]) -> dict | None:
     if not PEERS.exists():
         print(f"peers not installed ({PEERS}); run experiments/peers/setup_peers.sh", flush=True)
         return None
-    env = {**os.environ, "PYTHONPATH": ""}
+    env = peer_environ(PYTHONPATH="")  # Brax at its own XLA defaults, not fastrl's
     proc = subprocess.run([str(PEERS), *args], capture_output=True, text=True, env=env, cwd=ROOT, timeout=900)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     if proc.returncode or not lines:

@@ -84,6 +84,7 @@ from shipped import shipped_overrides  # experiments/shipped.py
 from fastrl import envs, physics
 from fastrl.envs.base import ASSETS
 from fastrl.physics import Integrator
+from fastrl.xla_flags import peer_environ
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
@@ -368,7 +369,12 @@ def sweep_brax(task: dict, ref: np.ndarray, plan: dict) -> list[dict]:
                    "--backend", backend, "--inputs", str(inputs), "--out", str(out)]  # fmt: skip
             try:
                 proc = subprocess.run(
-                    cmd, capture_output=True, text=True, cwd=PEERS_DIR, timeout=BRAX_TIMEOUT_S
+                    cmd,
+                    capture_output=True,
+                    text=True,
+                    cwd=PEERS_DIR,
+                    timeout=BRAX_TIMEOUT_S,
+                    env=peer_environ(),
                 )
             except subprocess.TimeoutExpired:
                 print(f"  Brax {backend}: no result within {BRAX_TIMEOUT_S} s, left out", flush=True)

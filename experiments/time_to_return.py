@@ -67,6 +67,8 @@ import time
 
 import numpy as np
 
+from fastrl.xla_flags import peer_environ
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PEERS = ROOT / ".venv-peers" / "bin" / "python"
 RESULTS = ROOT / "experiments" / "results"
@@ -177,7 +179,9 @@ def run_brax(
         cmd += ["--stop-at-return", str(stop_at)]
     launched = time.time()
     try:
-        out = subprocess.run(cmd, capture_output=True, text=True, timeout=time_limit or 7200)
+        out = subprocess.run(
+            cmd, capture_output=True, text=True, timeout=time_limit or 7200, env=peer_environ()
+        )
     except subprocess.TimeoutExpired as e:  # its output so far arrives as bytes
         stdout, cut = (e.stdout or b"").decode(), True
     else:

@@ -14,7 +14,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from fastrl import agents, runner
+from fastrl import agents, runner, xla_flags
 from fastrl.checkpoint import CheckpointError
 from fastrl.config import ConfigError, RunConfig
 
@@ -67,15 +67,6 @@ def init_distributed() -> None:
         jax.distributed.initialize()
 
 
-_DEVICE_FLAG = "--xla_force_host_platform_device_count"
-# XLA:CPU's newer fusion emitters compile the physics step more slowly and run it no faster.
-# Measured with one jitted scan of batched steps at batch 1024 (us/env/substep, compile s),
-# default vs this flag: Ant Euler 17.0/13.0 vs 16.8/8.6; HalfCheetah 9.9/9.8 vs 8.7/5.5; Hopper
-# 33.9/10.4 vs 36.6/9.0; Walker2d 50.2/12.3 vs 46.4/10.1; Humanoid 458/40.9 vs 466/42.4. The
-# default Ant PPO run: chunk compile 30.3 s -> 19.7 s, 10.1k -> 11.1k env steps/s.
-_FUSION_FLAG = "--xla_cpu_use_fusion_emitters"
-
-
 def cpu_devices(rc: RunConfig, cores: int) -> int:
     """How many XLA CPU devices to give a run on a host with ``cores`` cores.
 
@@ -102,21 +93,17 @@ def cpu_devices(rc: RunConfig, cores: int) -> int:
 
 
 def _set_cpu_flags(rc: RunConfig) -> None:
-    """Sets the CPU device count (``cpu_devices``) and turns XLA:CPU's fusion emitters off
-    (``_FUSION_FLAG``), while JAX has not started a backend yet. Either is left as ``XLA_FLAGS``
-    already sets it."""
+    """Sets the CPU device count (``cpu_devices``) and fastrl's XLA:CPU flags
+    (``xla_flags.DEFAULTS``) while JAX has not started a backend yet. Whatever ``XLA_FLAGS``
+    already sets is left as it is."""
     from jax._src import xla_bridge
 
     if xla_bridge.backends_are_initialized():
         return
-    flags = os.environ.get("XLA_FLAGS", "").split()
-    if not any(f.startswith(_DEVICE_FLAG) for f in flags):
-        n = cpu_devices(rc, len(os.sched_getaffinity(0)))
-        if n > 1:
-            flags.append(f"{_DEVICE_FLAG}={n}")
-    if not any(f.startswith(_FUSION_FLAG) for f in flags):
-        flags.append(f"{_FUSION_FLAG}=false")
-    os.environ["XLA_FLAGS"] = " ".join(flags)
+    flags = os.environ.get("XLA_FLAGS", "")
+    named = {f.split("=", 1)[0] for f in flags.split()}
+    devices = None if xla_flags.DEVICE_FLAG in named else cpu_devices(rc, len(os.sched_getaffinity(0)))
+    os.environ["XLA_FLAGS"] = xla_flags.with_defaults(flags, devices)
 
 
 def run(cfg: DictConfig, split_cpu: bool = False) -> dict:

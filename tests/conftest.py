@@ -9,6 +9,8 @@ import mujoco
 import numpy as np
 import pytest
 
+import fastrl  # noqa: F401  (first, so its XLA:CPU flags are set before JAX starts a backend)
+
 ASSETS = pathlib.Path(__file__).parent / "assets"
 MODELS = sorted(p.stem for p in ASSETS.glob("*.xml"))
 

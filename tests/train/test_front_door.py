@@ -247,12 +247,23 @@ def test_cli_xla_flags_keep_what_the_user_set(monkeypatch):
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
     train._set_cpu_flags(ppo)
-    added = ["--xla_force_host_platform_device_count=2", "--xla_cpu_use_fusion_emitters=false"]
+    added = [
+        "--xla_force_host_platform_device_count=2",
+        "--xla_cpu_use_fusion_emitters=false",
+        "--xla_cpu_experimental_ynn_fusion_type=-reduce,-eltwise",
+    ]
     assert os.environ["XLA_FLAGS"].split() == ["--xla_dump_to=/tmp/x", *added]
-    mine = "--xla_force_host_platform_device_count=1 --xla_cpu_use_fusion_emitters=true"
+    mine = (
+        "--xla_force_host_platform_device_count=1 --xla_cpu_use_fusion_emitters=true "
+        "--xla_cpu_experimental_ynn_fusion_type=+dot"
+    )
     monkeypatch.setenv("XLA_FLAGS", mine)
     train._set_cpu_flags(ppo)
     assert os.environ["XLA_FLAGS"] == mine
+    monkeypatch.setenv("FASTRL_XLA_FLAGS", "0")  # the opt-out keeps only the device count
+    monkeypatch.setenv("XLA_FLAGS", "")
+    train._set_cpu_flags(ppo)
+    assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=2"
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: True)  # too late to change
     monkeypatch.setenv("XLA_FLAGS", "")
     train._set_cpu_flags(ppo)

@@ -1,0 +1,75 @@
+"""XLA:CPU flags that fastrl's programs run faster with, set before JAX starts its CPU backend.
+
+XLA reads ``XLA_FLAGS`` once, when the first backend starts, so these must be in the environment
+before any JAX computation. ``import fastrl`` calls ``apply()``; the CLI adds the CPU device
+count (``train._set_cpu_flags``). A flag that ``XLA_FLAGS`` already names is left as the user set
+it, and ``FASTRL_XLA_FLAGS=0`` turns the defaults off altogether.
+
+Measured on the 2-core development machine (jax 0.10.2), default vs with the flag:
+
+- ``--xla_cpu_use_fusion_emitters=false``: XLA:CPU's newer fusion emitters compile the physics
+  step more slowly and run it no faster. One jitted scan of batched steps at batch 1024
+  (us/env/substep, compile s): Ant Euler 17.0/13.0 vs 16.8/8.6; HalfCheetah 9.9/9.8 vs 8.7/5.5;
+  Hopper 33.9/10.4 vs 36.6/9.0; Walker2d 50.2/12.3 vs 46.4/10.1; Humanoid 458/40.9 vs 466/42.4.
+  The default Ant PPO run's chunk compile: 30.3 s -> 19.7 s.
+- ``--xla_cpu_experimental_ynn_fusion_type=-reduce,-eltwise``: XLA:CPU hands reductions and
+  elementwise chains to YNNPACK, which runs the physics' many small per-environment sums (a
+  3x3 inertia rotation over 1024 envs took 2.1 ms as a YNN fusion) slower than XLA's own loops.
+  YNNPACK keeps the dots (the networks' matmuls). Ant RK4 at batch 1024, best of 3: 81.8 ->
+  ~68-74 us/env/substep; Ant Euler with 5 iterations 19.4 -> 18.4; the default Ant PPO run
+  10.7k -> 12.4-13.0k env steps/s.
+"""
+
+from __future__ import annotations
+
+import os
+
+DEFAULTS = {
+    "--xla_cpu_use_fusion_emitters": "false",
+    "--xla_cpu_experimental_ynn_fusion_type": "-reduce,-eltwise",
+}
+DEVICE_FLAG = "--xla_force_host_platform_device_count"
+_UNSET = object()
+_user_flags: object = _UNSET  # XLA_FLAGS as it was before ``apply`` first changed it
+
+
+def with_defaults(flags: str, devices: int | None = None) -> str:
+    """``flags`` (an ``XLA_FLAGS`` string) plus every default flag it does not name, and the
+    CPU device count when ``devices`` is given and it names none."""
+    out = flags.split()
+    named = {f.split("=", 1)[0] for f in out}
+    if devices is not None and DEVICE_FLAG not in named and devices > 1:
+        out.append(f"{DEVICE_FLAG}={devices}")
+    if os.environ.get("FASTRL_XLA_FLAGS", "1") != "0":
+        out += [f"{k}={v}" for k, v in DEFAULTS.items() if k not in named]
+    return " ".join(out)
+
+
+def apply(devices: int | None = None) -> bool:
+    """Puts ``with_defaults`` into ``XLA_FLAGS`` if no JAX backend has started yet.
+
+    Returns whether it could (after a backend starts, XLA no longer reads the flags).
+    """
+    import sys
+
+    if "jax" in sys.modules:
+        from jax._src import xla_bridge
+
+        if xla_bridge.backends_are_initialized():
+            return False
+    global _user_flags
+    if _user_flags is _UNSET:
+        _user_flags = os.environ.get("XLA_FLAGS")
+    os.environ["XLA_FLAGS"] = with_defaults(os.environ.get("XLA_FLAGS", ""), devices)
+    return True
+
+
+def peer_environ(**extra: str) -> dict[str, str]:
+    """``os.environ`` with ``XLA_FLAGS`` as the user set it (without fastrl's defaults), plus
+    ``extra``: for the benchmarks' peer processes (Brax), which run at their own defaults."""
+    env = dict(os.environ, **extra)
+    if _user_flags is None:
+        env.pop("XLA_FLAGS", None)
+    elif _user_flags is not _UNSET:
+        env["XLA_FLAGS"] = _user_flags
+    return env
