@@ -12,7 +12,8 @@ per core, as ``python -m fastrl.train`` runs PPO), in a child process started wi
 ``XLA_FLAGS=--xla_force_host_platform_device_count=2``. Peers run from
 ``.venv-peers`` (``bash experiments/peers/setup_peers.sh``): EnvPool ``Ant-v4`` with 2 threads and
 Brax's ``ant`` with its mjx, generalized, spring and positional backends at their own defaults.
-Writes ``experiments/results/contacts_throughput.{md,json,png}``.
+fastrl runs with the XLA:CPU flags ``import fastrl`` sets (``fastrl/xla_flags.py``); Brax with the
+user's ``XLA_FLAGS`` (its own defaults). Writes ``experiments/results/contacts_throughput.{md,json,png}``.
 """
 
 from __future__ import annotations

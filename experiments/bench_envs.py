@@ -15,6 +15,7 @@
    ``Ant-v5``, same N (64 and 1024): steps/s of each and their ratio, with make_vec on one
    device and on 2 CPU devices (child process).
 
+fastrl runs with the XLA:CPU flags ``import fastrl`` sets (``fastrl/xla_flags.py``).
 Writes ``experiments/results/env_throughput.{json,md}``.
 """
 
