@@ -94,16 +94,10 @@ def cpu_devices(rc: RunConfig, cores: int) -> int:
 
 def _set_cpu_flags(rc: RunConfig) -> None:
     """Sets the CPU device count (``cpu_devices``) and fastrl's XLA:CPU flags
-    (``xla_flags.DEFAULTS``) while JAX has not started a backend yet. Whatever ``XLA_FLAGS``
+    (``xla_flags.apply``) while JAX has not started a backend yet. Whatever ``XLA_FLAGS``
     already sets is left as it is."""
-    from jax._src import xla_bridge
-
-    if xla_bridge.backends_are_initialized():
-        return
-    flags = os.environ.get("XLA_FLAGS", "")
-    named = {f.split("=", 1)[0] for f in flags.split()}
-    devices = None if xla_flags.DEVICE_FLAG in named else cpu_devices(rc, len(os.sched_getaffinity(0)))
-    os.environ["XLA_FLAGS"] = xla_flags.with_defaults(flags, devices)
+    named = xla_flags.names(os.environ.get("XLA_FLAGS", ""))
+    xla_flags.apply(None if xla_flags.DEVICE_FLAG in named else cpu_devices(rc, len(os.sched_getaffinity(0))))
 
 
 def run(cfg: DictConfig, split_cpu: bool = False) -> dict:

@@ -29,15 +29,18 @@ DEFAULTS = {
     "--xla_cpu_experimental_ynn_fusion_type": "-reduce,-eltwise",
 }
 DEVICE_FLAG = "--xla_force_host_platform_device_count"
-_UNSET = object()
-_user_flags: object = _UNSET  # XLA_FLAGS as it was before ``apply`` first changed it
+_USER_FLAGS = os.environ.get("XLA_FLAGS")  # as the user set it, before ``import fastrl`` added to it
+
+
+def names(flags: str) -> set[str]:
+    """The flag names an ``XLA_FLAGS`` string sets."""
+    return {f.split("=", 1)[0] for f in flags.split()}
 
 
 def with_defaults(flags: str, devices: int | None = None) -> str:
     """``flags`` (an ``XLA_FLAGS`` string) plus every default flag it does not name, and the
     CPU device count when ``devices`` is given and it names none."""
-    out = flags.split()
-    named = {f.split("=", 1)[0] for f in out}
+    out, named = flags.split(), names(flags)
     if devices is not None and DEVICE_FLAG not in named and devices > 1:
         out.append(f"{DEVICE_FLAG}={devices}")
     if os.environ.get("FASTRL_XLA_FLAGS", "1") != "0":
@@ -57,9 +60,6 @@ def apply(devices: int | None = None) -> bool:
 
         if xla_bridge.backends_are_initialized():
             return False
-    global _user_flags
-    if _user_flags is _UNSET:
-        _user_flags = os.environ.get("XLA_FLAGS")
     os.environ["XLA_FLAGS"] = with_defaults(os.environ.get("XLA_FLAGS", ""), devices)
     return True
 
@@ -68,8 +68,8 @@ def peer_environ(**extra: str) -> dict[str, str]:
     """``os.environ`` with ``XLA_FLAGS`` as the user set it (without fastrl's defaults), plus
     ``extra``: for the benchmarks' peer processes (Brax), which run at their own defaults."""
     env = dict(os.environ, **extra)
-    if _user_flags is None:
+    if _USER_FLAGS is None:
         env.pop("XLA_FLAGS", None)
-    elif _user_flags is not _UNSET:
-        env["XLA_FLAGS"] = _user_flags
+    else:
+        env["XLA_FLAGS"] = _USER_FLAGS
     return env
