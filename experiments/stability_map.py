@@ -1,15 +1,15 @@
 """Stability map: where each env's simulation diverges, over timestep x solver iterations.
 
-    python experiments/stability_map.py                          # ten envs, ~2 h on 2 busy cores
+    python experiments/stability_map.py                          # all eleven envs, ~2.5 h on 2 cores
     python experiments/stability_map.py --envs ant hopper        # a subset
     python experiments/stability_map.py --envs walker2d --merge  # add envs to the committed map
     python experiments/stability_map.py --integrators euler rk4  # both integrators (twice the cost)
     python experiments/stability_map.py --quick                  # tiny, for CI (~20 s)
 
-Envs: ten of the eleven Gymnasium-suite envs: the contact envs Ant, HalfCheetah, Hopper, Walker2d,
-Humanoid and Pusher, and the contact-free Swimmer, Reacher, InvertedPendulum and
-InvertedDoublePendulum (joint limits their only constraints). HumanoidStandup is left out (its
-model is the Humanoid's, lying down, and costs as much: about another hour; ``--envs`` takes it).
+Envs: the eleven Gymnasium-suite envs: the contact envs Ant, HalfCheetah, Hopper, Walker2d,
+Humanoid, HumanoidStandup (the Humanoid's model, starting lying down) and Pusher, and the
+contact-free Swimmer, Reacher, InvertedPendulum and InvertedDoublePendulum (joint limits their only
+constraints).
 
 Grid, per env: physics timestep x constraint-solver iterations (1, 2, 3, 5, 8, 16; every env here
 has constraint rows, contacts or joint limits, so every one gets that axis). The env's control
@@ -53,9 +53,13 @@ penetration and the largest finite |qvel|.
 Cost (2 cores shared with a training run; one compiled program per env and iteration count,
 the timestep and substeps are its runtime arguments): a full Ant cell at the shipped setting
 (64 x 1000 control steps x 5 substeps) takes 14 s, at 10 substeps 23 s, after a 28 s compile; a
-Humanoid cell (16 x 1000 x 5) about 120 s (measured over 100 control steps) after a 70 s
-compile. Estimated: Ant 9 min, HalfCheetah 6, Hopper 13, Walker2d 15, Humanoid 55, Pusher 8,
-the other four 2-4 each: about 2 h.
+Humanoid cell (16 x 1000 x 5, RK4) 17-24 s at 5 substeps and 30-130 s at 10 (more with more
+iterations), after a 27-32 s compile (2026-11-25, with LAPACK for its dense Hessian). Measured:
+Ant 9 min, HalfCheetah 6, Hopper 13, Walker2d 15, Humanoid 17, HumanoidStandup 30 (sharing the
+cores with tests), Pusher 8, the other four 2-4 each: about 2 h.
+
+``--merge`` adds the envs it maps to the output JSON's others and lists each run's command and
+wall time; ``--from-json`` re-renders the markdown and chart of a saved map without simulating.
 
 Writes ``experiments/results/stability_map.{json,md,png}`` (``_quick`` in quick mode: the
 InvertedDoublePendulum, the asset's timestep and 4 dt x 1 and 8 iterations, 4 episodes x 50
@@ -89,7 +93,7 @@ from fastrl.physics.forward import has_constraints
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
-ENVS = ("ant", "halfcheetah", "hopper", "walker2d", "humanoid", "pusher",
+ENVS = ("ant", "halfcheetah", "hopper", "walker2d", "humanoid", "humanoidstandup", "pusher",
         "swimmer", "reacher", "inverted_pendulum", "inverted_double_pendulum")  # fmt: skip
 QUICK_ENV = "inverted_double_pendulum"
 ITERATIONS = (1, 2, 3, 5, 8, 16)
@@ -327,9 +331,15 @@ def _where(res: dict, ts: float | None) -> str:
     )
 
 
-def markdown(results: dict, machine: str, command: str, wall_s: float) -> str:
+def _runs_line(runs: list[dict]) -> str:
+    """The command(s) that made the map, each with its wall time (merged runs are listed in turn)."""
+    done = [f"`{r['command']}` ({r['wall_s'] / 60:.0f} min)" for r in runs]
+    return ("Command: " if len(done) == 1 else "Commands, merged in turn: ") + "; ".join(done) + "."
+
+
+def markdown(results: dict, machine: str, runs: list[dict]) -> str:
     lines = ["# Stability map: timestep x solver iterations", "",
-             f"Machine: {machine}. Command: `{command}` ({wall_s / 60:.0f} min).", "",
+             f"Machine: {machine}. {_runs_line(runs)}", "",
              "Each cell: episodes of random actions (uniform in the action bounds, one per control "
              "step, held over its substeps) from the env's reset, no task termination, the control "
              "step `dt` fixed (timestep = dt / substeps; the columns past dt take one physics step "
@@ -378,6 +388,18 @@ def markdown(results: dict, machine: str, command: str, wall_s: float) -> str:
     return "\n".join(lines)
 
 
+def _ordered(results: dict) -> dict:
+    order = [*ENVS, *sorted(set(results) - set(ENVS))]
+    return {name: results[name] for name in order if name in results}
+
+
+def _runs(saved: dict) -> list[dict]:
+    """The runs a saved map came from (older files hold one command and its total wall time)."""
+    return saved.get("runs") or [
+        {"command": saved["command"], "wall_s": saved["wall_s"], "envs": list(saved["envs"])}
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="1 env, 2x2 grid, 4 x 50 steps, for CI")
@@ -388,14 +410,21 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=None, help="per cell (default: EPISODES)")
     parser.add_argument("--steps", type=int, default=None, help=f"control steps per episode ({STEPS})")
     parser.add_argument("--merge", action="store_true", help="keep the other envs already in the output JSON")
+    parser.add_argument("--from-json", type=pathlib.Path, help="re-render the table and chart of a saved map")
     args = parser.parse_args()
+    if args.from_json:
+        saved = json.loads(args.from_json.read_text())
+        stem, results = args.from_json.stem, _ordered(saved["envs"])
+        (args.out / f"{stem}.md").write_text(markdown(results, saved["machine"], _runs(saved)))
+        chart(results, args.out / f"{stem}.png")
+        return
     names = args.envs or ([QUICK_ENV] if args.quick else list(ENVS))
     stem = "stability_map_quick" if args.quick else "stability_map"
-    results, wall_before = {}, 0.0
+    results, runs = {}, []
     if args.merge and (args.out / f"{stem}.json").exists():
         old = json.loads((args.out / f"{stem}.json").read_text())
         results = {k: v for k, v in old["envs"].items() if k not in names}
-        wall_before = old["wall_s"] if results else 0.0
+        runs = _runs(old) if results else []
         print(f"keeping {', '.join(results) or 'no envs'} from {args.out / f'{stem}.json'}")
     t0 = time.perf_counter()
     for name in names:
@@ -405,9 +434,8 @@ def main() -> None:
         plan = {"quick": args.quick, "iterations": iterations, "integrators": args.integrators,
                 "episodes": episodes, "steps": args.steps or (50 if args.quick else STEPS)}  # fmt: skip
         results[name] = map_env(task, plan)
-    wall = time.perf_counter() - t0 + wall_before
-    order = [*ENVS, *sorted(set(results) - set(ENVS))]
-    results = {name: results[name] for name in order if name in results}
+    wall = time.perf_counter() - t0
+    results = _ordered(results)
 
     cpu = platform.processor() or platform.machine()
     machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}"
@@ -415,10 +443,11 @@ def main() -> None:
     if args.envs:
         command += " --envs " + " ".join(args.envs) + (" --merge" if args.merge else "")
     args.out.mkdir(parents=True, exist_ok=True)
-    payload = {"machine": machine, "command": command, "wall_s": wall,
-               "penetration_bound": PENETRATION_BOUND, "qvel_bound": QVEL_BOUND, "envs": results}  # fmt: skip
+    runs = [*runs, {"command": command, "wall_s": wall, "envs": names}]
+    payload = {"machine": machine, "runs": runs, "penetration_bound": PENETRATION_BOUND,
+               "qvel_bound": QVEL_BOUND, "envs": results}  # fmt: skip
     (args.out / f"{stem}.json").write_text(json.dumps(payload, indent=1))
-    text = markdown(results, machine, command, wall)
+    text = markdown(results, machine, runs)
     (args.out / f"{stem}.md").write_text(text)
     chart(results, args.out / f"{stem}.png")
     print(text)

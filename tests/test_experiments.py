@@ -50,6 +50,10 @@ def test_bench_envs_quick(tmp_path):
     split = [r["split_2_devices"] for r in result["envs"]]
     assert all(r["engine"] == "fastrl, 2 devices" and r["control_steps_per_s"] > 0 for r in split)
     assert all(v["ratio"] > 0 and v["ratio_2_devices"] > 0 for v in result["vector"])
+    assert all(
+        v["ratio_training_settings"] > 0 and v["ratio_training_settings_2_devices"] > 0
+        for v in result["vector"]
+    )
 
 
 def test_speed_accuracy_quick(tmp_path):
@@ -117,7 +121,23 @@ def test_stability_map_quick(tmp_path):
     (limit,) = res["limits"].values()
     assert limit["guard"] == limit["diverged"] == max(r["timestep"] for r in rows)
     assert (tmp_path / "stability_map_quick.png").stat().st_size > 0
-    assert (tmp_path / "stability_map_quick.md").read_text().startswith("# Stability map")
+    text = (tmp_path / "stability_map_quick.md").read_text()
+    assert text.startswith("# Stability map")
+    assert [r["envs"] for r in result["runs"]] == [list(result["envs"])]
+    # Re-rendering the saved map reproduces its markdown.
+    again = tmp_path / "again"
+    again.mkdir()
+    script = str(ROOT / "experiments" / "stability_map.py")
+    cmd = [
+        sys.executable,
+        script,
+        "--from-json",
+        str(tmp_path / "stability_map_quick.json"),
+        "--out",
+        str(again),
+    ]
+    subprocess.run(cmd, check=True, cwd=ROOT, timeout=300)
+    assert (again / "stability_map_quick.md").read_text() == text
 
 
 def test_learner_stability_quick(tmp_path):
