@@ -46,7 +46,7 @@ MuJoCo's models converted by Brax), evaluating 16 episodes with the mean action 
   (upright, centred) to the reward it differentiates, since the 0/1 survival reward has no
   gradient; Brax's inverted_pendulum rewards survival only (1 per step), so its APG gets a zero
   gradient: this measures what each framework gives a user who asks for APG on the task.
-* ``reacher_apg`` (target -10): 128 envs, gradients over 50-step horizons, learning rate 3e-3,
+* ``reacher_apg`` (target -5): 128 envs, gradients over 50-step horizons, learning rate 3e-3,
   2x64 policy, on Gymnasium's 50-step reacher episodes (Brax's ``episode_length=50``).
 
 Both evaluate 1000-step episodes (reacher: 50); fastrl's evaluation uses the mean action. For
@@ -149,7 +149,9 @@ TASKS["inverted_pendulum_apg"] = {
 TASKS["reacher_apg"] = {
     "label": "reacher (Brax: its generalized reacher, 50-step episodes)",
     "algo": "apg",
-    "target": -10.0,
+    # -5, not -10: a motionless arm scores -11.8, so both learners pass -10 at their first
+    # evaluation (then the ratio measures compile time); at -5 the arm must reach the target.
+    "target": -5.0,
     "fastrl": ["env=reacher", "algo=apg"],  # 10 updates (64k env steps) per evaluation
     "fastrl_steps": 2_048_000,
     "brax": (
