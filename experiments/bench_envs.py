@@ -21,7 +21,8 @@
 The 2-device child reports each row on stderr as it finishes (the whole run takes 45+ min).
 
 fastrl runs with the XLA:CPU flags ``import fastrl`` sets (``fastrl/xla_flags.py``).
-Writes ``experiments/results/env_throughput.{json,md}``.
+Writes ``experiments/results/env_throughput.{json,md}`` (``--name`` another stem, e.g. for a run
+of one env).
 """
 
 from __future__ import annotations
@@ -134,6 +135,8 @@ def main() -> None:
     parser.add_argument("--envs", nargs="*", default=None, help="subset of env names")
     parser.add_argument("--batches", type=int, nargs="*", default=[1024, 4096], help="batch sizes")
     parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
+    parser.add_argument("--name", default="env_throughput",
+                        help="output file stem (a partial run need not replace the full table)")  # fmt: skip
     parser.add_argument("--worker", help=argparse.SUPPRESS)  # child process of in_child
     args = parser.parse_args()
     if args.worker:
@@ -181,7 +184,7 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {"machine": "2-core x86_64 CPU, no accelerator", "jax": jax.__version__}
     result = {"meta": meta, "envs": rows, "vector": vector}
-    (args.out / f"env_throughput{suffix}.json").write_text(json.dumps(result, indent=1))
+    (args.out / f"{args.name}{suffix}.json").write_text(json.dumps(result, indent=1))
     lines = ["# Env throughput (control steps/s, this machine, one run)", "",
              f"Command: `{' '.join(['python experiments/bench_envs.py', *sys.argv[1:]])}`. "
              "fastrl: the full env step (physics, observation,",
@@ -214,7 +217,7 @@ def main() -> None:
                  *(f"{x:.2f}x" for x in ratios[:2]), *(f"{x:,.0f}" for x in rates[2:]),
                  *(f"{x:.2f}x" for x in ratios[2:])]  # fmt: skip
         lines.append(f"| {v['num_envs']} | " + " | ".join(cells) + " |")
-    (args.out / f"env_throughput{suffix}.md").write_text("\n".join(lines) + "\n")
+    (args.out / f"{args.name}{suffix}.md").write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

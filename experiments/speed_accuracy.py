@@ -5,6 +5,7 @@
     python experiments/speed_accuracy.py --models ant --merge    # add to the committed models
     python experiments/speed_accuracy.py --quick                 # tiny, for CI
     python experiments/speed_accuracy.py --brax-only             # re-measure Brax's points only
+    python experiments/speed_accuracy.py --from-json             # re-mark the shipped settings
 
 Models: the Ant, HalfCheetah, Hopper and Humanoid (contacts) and the InvertedDoublePendulum (no
 contacts; its cart's joint limit, its only constraint, is not reached within its horizon). Each
@@ -54,7 +55,8 @@ JSON (and its fronts are recomputed with them).
 
 Shipped: the setting ``python -m fastrl.train env=<model>`` trains with, i.e. ``conf/env/<model>
 .yaml`` and ``conf/experiment/<model>_ppo.yaml`` over the env's defaults (the Ant: Euler at
-0.01 s x 5, 5 iterations; the others: the asset's integrator and timestep, 8 iterations).
+0.01 s x 5, 5 iterations; the others: the asset's integrator, timestep and iteration count).
+``--from-json`` marks it anew from the current configs in the committed JSON, measuring nothing.
 
 Writes ``experiments/results/speed_accuracy.{md,json,png}``: for each model every setting's
 speed and error, whether it is on the Pareto front of all points (no other point, fastrl or
@@ -114,7 +116,6 @@ def make_task(name: str, batch: int, horizon_s: float, seed: int = 0) -> dict:
     env = envs.make(name)
     mj = mujoco.MjModel.from_xml_path(str(ASSETS / env.asset))
     dt = mj.opt.timestep * env.frame_skip  # env.dt, without its float32 rounding
-    shipped = envs.make(name, **shipped_overrides(name))
     steps = max(1, round(horizon_s / dt))
     # Sequence i is drawn from its own key, so it does not depend on the batch or the horizon.
     keys = jax.vmap(jax.random.fold_in, (None, 0))(jax.random.PRNGKey(seed), jnp.arange(batch))
@@ -125,11 +126,23 @@ def make_task(name: str, batch: int, horizon_s: float, seed: int = 0) -> dict:
     return {
         "name": name, "asset": ASSETS / env.asset, "mj": mj, "frame_skip": env.frame_skip,
         "dt": dt, "steps": steps, "qpos": np.asarray(starts.qpos), "qvel": np.asarray(starts.qvel),
-        "ctrl": ctrl,
-        "shipped": {"integrator": Integrator(shipped.model.integrator).name.lower(),
-                    "substeps": round(dt / float(shipped.model.timestep)),
-                    "solver_iterations": shipped.model.solver_iterations},
+        "ctrl": ctrl, "shipped": shipped_setting(name, dt),
     }  # fmt: skip
+
+
+def shipped_setting(name: str, dt: float) -> dict:
+    """What ``python -m fastrl.train env=<name>`` simulates with: integrator, substeps, iterations."""
+    shipped = envs.make(name, **shipped_overrides(name))
+    return {"integrator": Integrator(shipped.model.integrator).name.lower(),
+            "substeps": round(dt / float(shipped.model.timestep)),
+            "solver_iterations": shipped.model.solver_iterations}  # fmt: skip
+
+
+def is_shipped(row: dict, shipped: dict, name: str) -> bool:
+    """Whether ``row`` is fastrl at the shipped setting (a contact-free model has no solver, so its
+    iteration count does not matter)."""
+    keys = [k for k in shipped if not (name in CONTACT_FREE and k == "solver_iterations")]
+    return row["engine"] == "fastrl" and all(row[k] == shipped[k] for k in keys)
 
 
 def substep_grid(frame_skip: int, quick: bool) -> list[int]:
@@ -295,7 +308,7 @@ def _row(task: dict, ref: np.ndarray, engine: str, setting: dict, sps: float, qp
     error = None if bad.any() else rms_error(tracked(task["mj"], task["name"], qpos), ref)
     row = {"engine": engine, **setting, "timestep": task["dt"] / setting["substeps"],
            "control_steps_per_s": sps, "error": error, "diverged": int(bad.sum())}  # fmt: skip
-    row["shipped"] = engine == "fastrl" and {k: row[k] for k in task["shipped"]} == task["shipped"]
+    row["shipped"] = is_shipped(row, task["shipped"], task["name"])
     print(f"  {label(row)}: {sps:,.0f} control steps/s, error {error}", flush=True)
     return row
 
@@ -526,6 +539,8 @@ def markdown(results: dict, machine: str) -> str:
                   f"iterations, {where}.", "",
                   *([f"Brax's rows were measured on {later[0]['measured']} by `--brax-only`, in a later run "
                      "than the others on the same machine.", ""] if later else []),
+                  *([f"Shipped setting marked anew on {res['shipped_marked']} from the configs of that day "
+                     "(`--from-json`; nothing re-measured).", ""] if res.get("shipped_marked") else []),
                   "| setting | control steps/s | error | front | fastrl front | shipped |",
                   "| --- | ---: | ---: | :---: | :---: | :---: |"]  # fmt: skip
         for r in sorted(res["rows"], key=lambda r: -r["control_steps_per_s"]):
@@ -555,7 +570,14 @@ def main() -> None:
         action="store_true",
         help="re-measure only Brax's backends, keeping fastrl's and MuJoCo C's rows from the output JSON",
     )
+    parser.add_argument(
+        "--from-json",
+        action="store_true",
+        help="measure nothing: mark the shipped settings anew from the current configs and re-render",
+    )
     args = parser.parse_args()
+    if args.from_json:
+        return rerender(args.out / ("speed_accuracy_quick.json" if args.quick else "speed_accuracy.json"))
     if args.brax_only and not PEERS_PYTHON.exists():
         parser.error(f"--brax-only needs the peer venv {PEERS_PYTHON} (experiments/peers/setup_peers.sh)")
     models = args.models or (["inverted_double_pendulum"] if args.quick else list(MODELS))
@@ -592,11 +614,32 @@ def main() -> None:
     machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}, mujoco {mujoco.__version__}"
     args.out.mkdir(parents=True, exist_ok=True)
     results = {name: results[name] for name in MODELS if name in results}  # a fixed order
-    (args.out / f"{stem}.json").write_text(json.dumps({"machine": machine, "models": results}, indent=1))
+    write(args.out / f"{stem}.json", machine, results)
+
+
+def write(path: pathlib.Path, machine: str, results: dict) -> None:
+    """The JSON at ``path``, and beside it the table (.md) and the chart (.png)."""
+    path.write_text(json.dumps({"machine": machine, "models": results}, indent=1))
     text = markdown(results, machine)
-    (args.out / f"{stem}.md").write_text(text)
-    chart(results, args.out / f"{stem}.png")
+    path.with_suffix(".md").write_text(text)
+    chart(results, path.with_suffix(".png"))
     print(text)
+
+
+def rerender(path: pathlib.Path) -> None:
+    """Re-marks each model's shipped setting from today's configs (a shipped iteration count may
+    have changed since the rows were measured) and rewrites the table and chart; measures nothing."""
+    if not path.exists():
+        raise SystemExit(f"--from-json: no {path}; run the sweep first")
+    saved = json.loads(path.read_text())
+    for name, res in saved["models"].items():
+        res["shipped"] = shipped_setting(name, res["dt"])
+        for r in res["rows"]:
+            r["shipped"] = is_shipped(r, res["shipped"], name)
+        if not any(r["shipped"] for r in res["rows"]):
+            print(f"{name}: the shipped setting {res['shipped']} is not among the measured rows")
+        res["shipped_marked"] = time.strftime("%Y-%m-%d")
+    write(path, saved["machine"], saved["models"])
 
 
 if __name__ == "__main__":

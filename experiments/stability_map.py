@@ -128,18 +128,35 @@ def env_task(name: str) -> dict:
     """The env's control step, frame_skip, asset timestep and shipped physics setting."""
     env = envs.make(name, terminate_when_unhealthy=False)
     mj = mujoco.MjModel.from_xml_path(str(ASSETS / env.asset))
-    shipped_env = envs.make(name, terminate_when_unhealthy=False, **shipped_overrides(name))
     dt = mj.opt.timestep * env.frame_skip  # env.dt without its float32 rounding
+    return {
+        "name": name, "dt": dt, "frame_skip": env.frame_skip, "asset_timestep": mj.opt.timestep,
+        "constrained": has_constraints(env.model), "shipped": shipped_setting(name, dt),
+    }  # fmt: skip
+
+
+def shipped_setting(name: str, dt: float) -> dict:
+    """Integrator, substeps and solver iterations ``python -m fastrl.train env=<name>`` uses."""
+    shipped_env = envs.make(name, terminate_when_unhealthy=False, **shipped_overrides(name))
     shipped_dt = float(np.float64(np.float32(shipped_env.model.timestep))) * shipped_env.frame_skip
     if not np.isclose(shipped_dt, dt, rtol=1e-5):
         raise ValueError(f"{name}: the shipped control step {shipped_dt} differs from the env's {dt}")
-    return {
-        "name": name, "dt": dt, "frame_skip": env.frame_skip, "asset_timestep": mj.opt.timestep,
-        "constrained": has_constraints(env.model),
-        "shipped": {"integrator": Integrator(shipped_env.model.integrator).name.lower(),
-                    "substeps": round(dt / float(shipped_env.model.timestep)),
-                    "solver_iterations": int(shipped_env.model.solver_iterations)},
-    }  # fmt: skip
+    return {"integrator": Integrator(shipped_env.model.integrator).name.lower(),
+            "substeps": round(dt / float(shipped_env.model.timestep)),
+            "solver_iterations": int(shipped_env.model.solver_iterations)}  # fmt: skip
+
+
+def is_shipped(row: dict, shipped: dict) -> bool:
+    return not row["beyond_dt"] and all(row[k] == v for k, v in shipped.items())
+
+
+def remark_shipped(name: str, res: dict) -> None:
+    """Marks a saved map's shipped cells and limits from today's configs (a shipped iteration count
+    may have changed since the map was measured)."""
+    res["shipped"] = shipped_setting(name, res["dt"])
+    for r in res["rows"]:
+        r["shipped"] = is_shipped(r, res["shipped"])
+    res["limits"] = limits(res, res["rows"])
 
 
 def cell_program(name: str, integrator: str, iterations: int, episodes: int, steps: int):
@@ -226,7 +243,7 @@ def map_env(task: dict, plan: dict) -> dict:
                 row = {"integrator": integrator, "solver_iterations": iters, **col,
                        "beyond_dt": col["control_step"] > task["dt"], **summarize(*out),
                        "wall_s": wall, "compile_s": compile_s}  # fmt: skip
-                row["shipped"] = not row["beyond_dt"] and all(row[k] == v for k, v in task["shipped"].items())
+                row["shipped"] = is_shipped(row, task["shipped"])
                 rows.append(row)
                 print(f"  {name} {integrator} {row['timestep']:.4g} s x{row['substeps']}, {iters} iters: "
                       f"{row['diverged']:.0%} diverged (guard {row['guard']:.0%}, penetration "
@@ -238,15 +255,20 @@ def map_env(task: dict, plan: dict) -> dict:
 
 def limits(task: dict, rows: list[dict]) -> dict:
     """Per integrator, at the shipped iterations: the smallest timestep with any divergence and
-    the smallest one the guard flags (None: none on the grid)."""
-    iters = task["shipped"]["solver_iterations"]
+    the smallest one the guard flags (None: none on the grid). A shipped count the grid lacks is
+    judged at the grid's next smaller count (``iterations`` says which), fewer iterations being
+    the less stable side."""
+    shipped = task["shipped"]["solver_iterations"]
     out = {}
     for integrator in sorted({r["integrator"] for r in rows}):
+        counts = sorted({r["solver_iterations"] for r in rows if r["integrator"] == integrator})
+        iters = max((c for c in counts if c <= shipped), default=counts[0])
         mine = [r for r in rows if r["integrator"] == integrator and r["solver_iterations"] == iters]
         out[integrator] = {
             key: min((r["timestep"] for r in mine if r[key] > 0), default=None)
             for key in ("diverged", "guard")
         }
+        out[integrator]["iterations"] = iters
     return out
 
 
@@ -359,8 +381,10 @@ def markdown(results: dict, machine: str, runs: list[dict]) -> str:
         ship = f"{s['integrator']}, {res['dt'] / s['substeps']:.3g} s x{s['substeps']}, "
         ship += f"{s['solver_iterations']} iters"
         for integ, lim in res["limits"].items():
-            lines.append(f"| {name} | {res['dt']:.3g} | {ship} | {integ} | {_where(res, lim['diverged'])} "
-                         f"| {_where(res, lim['guard'])} |")  # fmt: skip
+            at = lim.get("iterations", s["solver_iterations"])
+            judged = "" if at == s["solver_iterations"] else f" (not on the grid: at {at} iters)"
+            lines.append(f"| {name} | {res['dt']:.3g} | {ship}{judged} | {integ} "
+                         f"| {_where(res, lim['diverged'])} | {_where(res, lim['guard'])} |")  # fmt: skip
     lines.append("")
     for name, res in results.items():
         s = res["shipped"]
@@ -410,11 +434,16 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=None, help="per cell (default: EPISODES)")
     parser.add_argument("--steps", type=int, default=None, help=f"control steps per episode ({STEPS})")
     parser.add_argument("--merge", action="store_true", help="keep the other envs already in the output JSON")
-    parser.add_argument("--from-json", type=pathlib.Path, help="re-render the table and chart of a saved map")
+    parser.add_argument("--from-json", type=pathlib.Path,
+                        help="re-render a saved map, shipped cells marked from today's configs")  # fmt: skip
     args = parser.parse_args()
     if args.from_json:
         saved = json.loads(args.from_json.read_text())
         stem, results = args.from_json.stem, _ordered(saved["envs"])
+        for name, res in results.items():
+            remark_shipped(name, res)
+        kept_order = {name: results[name] for name in saved["envs"]}  # a small diff
+        args.from_json.write_text(json.dumps({**saved, "envs": kept_order}, indent=1))
         (args.out / f"{stem}.md").write_text(markdown(results, saved["machine"], _runs(saved)))
         chart(results, args.out / f"{stem}.png")
         return

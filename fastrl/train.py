@@ -93,11 +93,12 @@ def cpu_devices(rc: RunConfig, cores: int) -> int:
 
 
 def _set_cpu_flags(rc: RunConfig) -> None:
-    """Sets the CPU device count (``cpu_devices``) and fastrl's XLA:CPU flags
-    (``xla_flags.apply``) while JAX has not started a backend yet. Whatever ``XLA_FLAGS``
-    already sets is left as it is."""
+    """Sets the CPU device count (``cpu_devices``) and fastrl's XLA:CPU flags for this learner
+    (``xla_flags.apply``) while JAX has not started a backend yet. Whatever the user's
+    ``XLA_FLAGS`` sets is left as it is."""
     named = xla_flags.names(os.environ.get("XLA_FLAGS", ""))
-    xla_flags.apply(None if xla_flags.DEVICE_FLAG in named else cpu_devices(rc, len(os.sched_getaffinity(0))))
+    devices = None if xla_flags.DEVICE_FLAG in named else cpu_devices(rc, len(os.sched_getaffinity(0)))
+    xla_flags.apply(devices, rc.algo_name)
 
 
 def run(cfg: DictConfig, split_cpu: bool = False) -> dict:

@@ -60,6 +60,7 @@ def test_speed_accuracy_quick(tmp_path):
     result = _run_quick("speed_accuracy.py", tmp_path, "speed_accuracy_quick.json")
     (res,) = result["models"].values()
     rows = res["rows"]
+    res_rows_before = [dict(r) for r in rows]
     assert {r["engine"] for r in rows} == {"fastrl", "MuJoCo C"}
     assert all(r["control_steps_per_s"] > 0 and r["error"] is not None for r in rows)
     assert sum(r["shipped"] for r in rows) == 1 and any(r["pareto"] for r in rows)
@@ -71,6 +72,17 @@ def test_speed_accuracy_quick(tmp_path):
     assert all(0.5 < err["fastrl", n] / err["MuJoCo C", n] < 2 for n in (1, 5))
     assert (tmp_path / "speed_accuracy_quick.png").stat().st_size > 0
     assert (tmp_path / "speed_accuracy_quick.md").read_text().startswith("# Speed vs accuracy")
+    # --from-json marks the shipped setting anew from the configs (here: after it was unmarked).
+    saved = tmp_path / "speed_accuracy_quick.json"
+    for r in rows:
+        r["shipped"] = False
+    saved.write_text(json.dumps(result))
+    script = ROOT / "experiments" / "speed_accuracy.py"
+    subprocess.run([sys.executable, str(script), "--quick", "--from-json", "--out", str(tmp_path)],
+                   check=True, cwd=ROOT, timeout=300)  # fmt: skip
+    (again,) = json.loads(saved.read_text())["models"].values()
+    assert [r["shipped"] for r in again["rows"]] == [r["shipped"] for r in res_rows_before]
+    assert "marked anew" in (tmp_path / "speed_accuracy_quick.md").read_text()
 
 
 def test_conservation_quick(tmp_path):
@@ -124,7 +136,13 @@ def test_stability_map_quick(tmp_path):
     text = (tmp_path / "stability_map_quick.md").read_text()
     assert text.startswith("# Stability map")
     assert [r["envs"] for r in result["runs"]] == [list(result["envs"])]
-    # Re-rendering the saved map reproduces its markdown.
+    # Re-rendering the saved map reproduces its markdown, its shipped cells marked anew from the
+    # configs (here: after they were unmarked).
+    saved = tmp_path / "stability_map_quick.json"
+    for r in rows:
+        r["shipped"] = False
+    res["limits"] = {}
+    saved.write_text(json.dumps(result))
     again = tmp_path / "again"
     again.mkdir()
     script = str(ROOT / "experiments" / "stability_map.py")
