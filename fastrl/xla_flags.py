@@ -37,6 +37,9 @@ DEFAULTS = {
 # Default flags a learner runs slower with (measured: see above); the command line leaves them out.
 NOT_FOR = {"sac": ("--xla_cpu_use_fusion_emitters",)}
 DEVICE_FLAG = "--xla_force_host_platform_device_count"
+# The flags fastrl put into XLA_FLAGS, so that a child process (which inherits both) can tell them
+# from the user's own: a learner may take out a default it runs slower with, never a user's flag.
+ADDED_VAR = "FASTRL_XLA_FLAGS_ADDED"
 _USER_FLAGS = os.environ.get("XLA_FLAGS")  # as the user set it, before ``import fastrl`` added to it
 
 
@@ -48,12 +51,11 @@ def names(flags: str) -> set[str]:
 def with_defaults(flags: str, devices: int | None = None, algo: str | None = None) -> str:
     """``flags`` (an ``XLA_FLAGS`` string) plus every default flag it does not name, and the
     CPU device count when ``devices`` is given and it names none. With ``algo``, the defaults
-    that learner runs slower with (``NOT_FOR``) are left out, and taken out again where an
-    earlier call (``import fastrl``) added them and the user had not set them."""
+    that learner runs slower with (``NOT_FOR``) are left out, and taken out again where fastrl
+    added them earlier (``import fastrl``, here or in a parent process: ``ADDED_VAR``)."""
     skip = NOT_FOR.get(algo or "", ())
-    mine = names(_USER_FLAGS or "")
-    added = {f"{k}={DEFAULTS[k]}" for k in skip if k not in mine}
-    out = [f for f in flags.split() if f not in added]
+    added_earlier = set(os.environ.get(ADDED_VAR, "").split())
+    out = [f for f in flags.split() if not (f in added_earlier and names(f) & set(skip))]
     named = names(" ".join(out))
     if devices is not None and DEVICE_FLAG not in named and devices > 1:
         out.append(f"{DEVICE_FLAG}={devices}")
@@ -74,7 +76,11 @@ def apply(devices: int | None = None, algo: str | None = None) -> bool:
 
         if xla_bridge.backends_are_initialized():
             return False
-    os.environ["XLA_FLAGS"] = with_defaults(os.environ.get("XLA_FLAGS", ""), devices, algo)
+    current = os.environ.get("XLA_FLAGS", "")
+    new = with_defaults(current, devices, algo)
+    added = set(os.environ.get(ADDED_VAR, "").split()) | (set(new.split()) - set(current.split()))
+    os.environ[ADDED_VAR] = " ".join(sorted(added))
+    os.environ["XLA_FLAGS"] = new
     return True
 
 

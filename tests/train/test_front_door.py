@@ -240,11 +240,12 @@ def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
 def test_cli_xla_flags_keep_what_the_user_set(monkeypatch):
     from jax._src import xla_bridge
 
-    from fastrl import train
+    from fastrl import train, xla_flags
 
     ppo = typed(["env=inverted_pendulum", "algo=ppo", "algo.num_envs=6", "algo.unroll_length=4"])
     monkeypatch.setenv("FASTRL_CPU_DEVICES", "2")
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
+    monkeypatch.setenv(xla_flags.ADDED_VAR, os.environ.get(xla_flags.ADDED_VAR, ""))  # restored after
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
     train._set_cpu_flags(ppo)
     added = [
@@ -272,7 +273,7 @@ def test_cli_xla_flags_keep_what_the_user_set(monkeypatch):
 
 def test_cli_xla_flags_per_learner(monkeypatch):
     """SAC runs with XLA's fusion emitters (faster for its networks): the command line takes out
-    the flag ``import fastrl`` added, unless the user set it."""
+    the flag ``import fastrl`` added (here or in a parent process), never the user's own."""
     from jax._src import xla_bridge
 
     from fastrl import train, xla_flags
@@ -280,15 +281,20 @@ def test_cli_xla_flags_per_learner(monkeypatch):
     sac = typed(["env=inverted_pendulum", "algo=sac", "algo.num_envs=4"])
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
     monkeypatch.delenv("FASTRL_XLA_FLAGS", raising=False)
-    monkeypatch.setattr(xla_flags, "_USER_FLAGS", "--xla_dump_to=/tmp/x")
-    ynn = "--xla_cpu_experimental_ynn_fusion_type=-reduce,-eltwise"
-    at_import = xla_flags.with_defaults("--xla_dump_to=/tmp/x")
-    assert "--xla_cpu_use_fusion_emitters=false" in at_import.split()
-    monkeypatch.setenv("XLA_FLAGS", at_import)
+    emitters, ynn = (
+        "--xla_cpu_use_fusion_emitters=false",
+        "--xla_cpu_experimental_ynn_fusion_type=-reduce,-eltwise",
+    )
+    monkeypatch.setenv(xla_flags.ADDED_VAR, "")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
+    xla_flags.apply()  # what ``import fastrl`` does
+    assert emitters in os.environ["XLA_FLAGS"].split()
+    xla_flags.apply()  # a child process that inherited both variables imports fastrl again
     train._set_cpu_flags(sac)
     assert os.environ["XLA_FLAGS"].split() == ["--xla_dump_to=/tmp/x", ynn]
     # The user's own setting of the flag stays.
-    monkeypatch.setattr(xla_flags, "_USER_FLAGS", "--xla_cpu_use_fusion_emitters=false")
-    monkeypatch.setenv("XLA_FLAGS", xla_flags.with_defaults("--xla_cpu_use_fusion_emitters=false"))
+    monkeypatch.setenv(xla_flags.ADDED_VAR, "")
+    monkeypatch.setenv("XLA_FLAGS", emitters)
+    xla_flags.apply()
     train._set_cpu_flags(sac)
-    assert os.environ["XLA_FLAGS"].split() == ["--xla_cpu_use_fusion_emitters=false", ynn]
+    assert os.environ["XLA_FLAGS"].split() == [emitters, ynn]
