@@ -27,3 +27,19 @@ def shipped_overrides(name: str, algo: str = "ppo") -> dict:
             conf = (conf.get("env") or {}) if path.parent.name == "experiment" else conf
             out.update({k: conf[k] for k in PHYSICS_KEYS if conf.get(k) is not None})
     return out
+
+
+def shipped_setting(name: str, dt: float) -> dict:
+    """Integrator, substeps per control step ``dt`` and solver iterations of the shipped setting."""
+    import numpy as np
+
+    from fastrl import envs
+    from fastrl.physics import Integrator
+
+    env = envs.make(name, **shipped_overrides(name))
+    shipped_dt = float(np.float64(np.float32(env.model.timestep))) * env.frame_skip
+    if not np.isclose(shipped_dt, dt, rtol=1e-5):
+        raise ValueError(f"{name}: the shipped control step {shipped_dt} differs from the env's {dt}")
+    return {"integrator": Integrator(env.model.integrator).name.lower(),
+            "substeps": round(dt / float(env.model.timestep)),
+            "solver_iterations": int(env.model.solver_iterations)}  # fmt: skip

@@ -81,11 +81,10 @@ import jax.numpy as jnp
 import mujoco
 import mujoco.rollout
 import numpy as np
-from shipped import shipped_overrides  # experiments/shipped.py
+from shipped import shipped_setting  # experiments/shipped.py
 
 from fastrl import envs, physics
 from fastrl.envs.base import ASSETS
-from fastrl.physics import Integrator
 from fastrl.xla_flags import peer_environ
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -128,14 +127,6 @@ def make_task(name: str, batch: int, horizon_s: float, seed: int = 0) -> dict:
         "dt": dt, "steps": steps, "qpos": np.asarray(starts.qpos), "qvel": np.asarray(starts.qvel),
         "ctrl": ctrl, "shipped": shipped_setting(name, dt),
     }  # fmt: skip
-
-
-def shipped_setting(name: str, dt: float) -> dict:
-    """What ``python -m fastrl.train env=<name>`` simulates with: integrator, substeps, iterations."""
-    shipped = envs.make(name, **shipped_overrides(name))
-    return {"integrator": Integrator(shipped.model.integrator).name.lower(),
-            "substeps": round(dt / float(shipped.model.timestep)),
-            "solver_iterations": shipped.model.solver_iterations}  # fmt: skip
 
 
 def is_shipped(row: dict, shipped: dict, name: str) -> bool:

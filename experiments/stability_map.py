@@ -84,11 +84,11 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from shipped import shipped_overrides  # experiments/shipped.py
+from shipped import shipped_setting  # experiments/shipped.py
 
 from fastrl import envs
 from fastrl.envs.base import ASSETS
-from fastrl.physics import Integrator, step
+from fastrl.physics import step
 from fastrl.physics.forward import has_constraints
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -133,17 +133,6 @@ def env_task(name: str) -> dict:
         "name": name, "dt": dt, "frame_skip": env.frame_skip, "asset_timestep": mj.opt.timestep,
         "constrained": has_constraints(env.model), "shipped": shipped_setting(name, dt),
     }  # fmt: skip
-
-
-def shipped_setting(name: str, dt: float) -> dict:
-    """Integrator, substeps and solver iterations ``python -m fastrl.train env=<name>`` uses."""
-    shipped_env = envs.make(name, terminate_when_unhealthy=False, **shipped_overrides(name))
-    shipped_dt = float(np.float64(np.float32(shipped_env.model.timestep))) * shipped_env.frame_skip
-    if not np.isclose(shipped_dt, dt, rtol=1e-5):
-        raise ValueError(f"{name}: the shipped control step {shipped_dt} differs from the env's {dt}")
-    return {"integrator": Integrator(shipped_env.model.integrator).name.lower(),
-            "substeps": round(dt / float(shipped_env.model.timestep)),
-            "solver_iterations": int(shipped_env.model.solver_iterations)}  # fmt: skip
 
 
 def is_shipped(row: dict, shipped: dict) -> bool:
