@@ -78,10 +78,13 @@ def main(argv=None) -> int:
     parser.add_argument("--video", metavar="OUT.gif", help="render the first episode (.gif or .mp4)")
     parser.add_argument("--steps", type=int, help="show at most this many steps of it (default: all)")
     parser.add_argument("--agent", help="of a batch run (train.num_seeds > 1): the agent's index or tag")
+    parser.add_argument(
+        "--step", type=int, help="the checkpoint (chunk) to evaluate (default: the newest that can be read)"
+    )
     args = parser.parse_args(argv)
     agent = int(args.agent) if args.agent is not None and args.agent.isdigit() else args.agent
     try:
-        rc, env, learner, state = load_run(args.run_dir, agent=agent)
+        rc, env, learner, state = load_run(args.run_dir, step=args.step, agent=agent)
     except CheckpointError as e:
         print(f"[fastrl] error: {e}", file=sys.stderr)
         return 2

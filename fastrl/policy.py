@@ -13,7 +13,10 @@ from fastrl.runner import CHECKPOINT_DIR
 
 
 def load_run(run_dir: str | Path, step: int | None = None, agent: int | str | None = None):
-    """(RunConfig, env, learner, state) of a run's checkpoint (default: the latest).
+    """(RunConfig, env, learner, state) of a run's checkpoint at ``step`` (default: the newest
+    that can be read; an unreadable newer one is reported on stderr and skipped).
+
+    The state is placed on this process's devices, whatever device count the run trained on.
 
     A batch run (``train.num_seeds > 1`` or a ``train.vmap_sweep``) holds several agents in one
     checkpoint: pick one with ``agent`` (its index or tag, e.g. ``0`` or ``"000-seed0"``), or pass
@@ -27,34 +30,39 @@ def load_run(run_dir: str | Path, step: int | None = None, agent: int | str | No
         raise CheckpointError(f"{run_dir} is not a fastrl run folder (no {CHECKPOINT_DIR}/ inside)")
     ckpt = Checkpointer(run_dir / CHECKPOINT_DIR)
     try:
-        step, meta = ckpt.read_meta(step)
-        config = meta["config"]
-        rc = RunConfig.from_dict(config)
-        env = rc.env.make()
-        specs = scale.expand(rc)
-        if len(specs) == 1:
-            if agent not in (None, 0, specs[0].tag):
-                raise CheckpointError(f"{run_dir} holds one agent; agent={agent!r} does not name it")
-            learner = agents.make_learner(rc.algo_name, rc.algo, env, rc.network, 1)
-            abstract = jax.eval_shape(learner.init, jax.random.PRNGKey(rc.seed))
-            state, _ = ckpt.restore(abstract, config, step)
-            return rc, env, learner, state
-        tags = [spec.tag for spec in specs]
-        if agent is None:
-            raise CheckpointError(
-                f"{run_dir} holds a batch of {len(specs)} agents ({', '.join(tags)}); choose one: "
-                f"load_policy(run_dir, agent=0), python -m fastrl.evaluate RUN_DIR --agent 0, or the "
-                f"agent's folder {run_dir / 'agents' / tags[0]}"
-            )
-        index = tags.index(agent) if agent in tags else agent
-        if not isinstance(index, int) or not 0 <= index < len(specs):
-            raise CheckpointError(
-                f"agent={agent!r} is not one of {run_dir}'s agents: 0..{len(specs) - 1} or {tags}"
-            )
-        batch = scale.batch_learner(rc, specs, env, 1)
-        state, _ = ckpt.restore(jax.eval_shape(batch.init, scale.init_keys(specs)), config, step)
+        return ckpt.restore_newest(lambda s: _restore_agent(ckpt, run_dir, s, agent), step)
     finally:
         ckpt.close()
+
+
+def _restore_agent(ckpt: Checkpointer, run_dir: Path, step: int, agent: int | str | None):
+    """``load_run`` for one saved step (the config is the one saved with it)."""
+    step, meta = ckpt.read_meta(step)
+    config = meta["config"]
+    rc = RunConfig.from_dict(config)
+    env = rc.env.make()
+    specs = scale.expand(rc)
+    if len(specs) == 1:
+        if agent not in (None, 0, specs[0].tag):
+            raise CheckpointError(f"{run_dir} holds one agent; agent={agent!r} does not name it")
+        learner = agents.make_learner(rc.algo_name, rc.algo, env, rc.network, 1)
+        abstract = jax.eval_shape(learner.init, jax.random.PRNGKey(rc.seed))
+        state, _ = ckpt.restore(abstract, config, step)
+        return rc, env, learner, state
+    tags = [spec.tag for spec in specs]
+    if agent is None:
+        raise CheckpointError(
+            f"{run_dir} holds a batch of {len(specs)} agents ({', '.join(tags)}); choose one: "
+            f"load_policy(run_dir, agent=0), python -m fastrl.evaluate RUN_DIR --agent 0, or the "
+            f"agent's folder {run_dir / 'agents' / tags[0]}"
+        )
+    index = tags.index(agent) if agent in tags else agent
+    if not isinstance(index, int) or not 0 <= index < len(specs):
+        raise CheckpointError(
+            f"agent={agent!r} is not one of {run_dir}'s agents: 0..{len(specs) - 1} or {tags}"
+        )
+    batch = scale.batch_learner(rc, specs, env, 1)
+    state, _ = ckpt.restore(jax.eval_shape(batch.init, scale.init_keys(specs)), config, step)
     one = specs[index].config
     learner = agents.make_learner(one.algo_name, one.algo, env, one.network, 1)
     return one, env, learner, jax.tree.map(lambda x: x[index], state)

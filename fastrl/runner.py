@@ -14,7 +14,10 @@ import dataclasses
 import json
 import logging
 import math
+import os
+import shutil
 import signal
+import socket
 import sys
 import time
 from pathlib import Path
@@ -158,7 +161,14 @@ def _progress(row: dict, total_steps: int, elapsed: float) -> str:
     )
 
 
-def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=None) -> dict[str, Any]:
+def train(
+    cfg: RunConfig,
+    run_dir: str | Path,
+    resume: bool = False,
+    on_chunk=None,
+    resume_step: int | None = None,
+    record: dict[str, str] | None = None,
+) -> dict[str, Any]:
     """Runs (or resumes) training into ``run_dir``.
 
     With ``train.num_seeds > 1`` or a ``train.vmap_sweep`` the run is a batch of agents in one
@@ -168,17 +178,40 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
     Args:
       cfg: the typed run config.
       run_dir: the run's folder (config, checkpoints, logs, curve).
-      resume: continue from the latest checkpoint in ``run_dir``.
+      resume: continue from the newest checkpoint in ``run_dir`` that can be read (an unreadable
+        newer one is reported and set aside), or from ``resume_step``.
       on_chunk: optional callback ``(chunk, row)`` after every chunk (tests use it); for a batch
         ``row`` is the mean over agents and ``row["agents"]`` holds each agent's row.
+      resume_step: with ``resume``, the chunk to continue from; newer checkpoints are moved
+        to ``run_dir/checkpoints_set_aside/`` (never deleted).
+      record: ``{relative path: text}`` written into ``run_dir`` with ``config.json`` once the
+        run owns the folder (the command line's record of itself, e.g. ``.hydra/overrides.yaml``).
+
+    Nothing is written into ``run_dir`` before the run is known to be valid: a rejected start
+    (the folder holds another run's checkpoints, the config differs from the checkpoint's, the
+    folder is in use by another process) leaves every file as it was. A run holds a lock on its
+    folder while it runs.
     Returns:
       A summary: status ("done", "stopped", "diverged", or "reached" when every agent's
-      evaluation return reached ``train.stop_at_return``), chunks, env_steps, final metrics; with
+      evaluation return reached ``train.stop_at_return``), ``interrupted`` (stopped by
+      Ctrl-C), chunks, env_steps, final metrics; with
       ``stop_at_return`` also ``reached``: per agent the chunk, env steps, training seconds and
       return of its first evaluation at or above it (None where it never got there).
     """
     run_dir = Path(run_dir).absolute()
     run_dir.mkdir(parents=True, exist_ok=True)
+    with RunDirLock(run_dir):
+        return _train(cfg, run_dir, resume, on_chunk, resume_step, record or {})
+
+
+def _train(cfg, run_dir: Path, resume: bool, on_chunk, resume_step, record) -> dict[str, Any]:
+    ckpt = Checkpointer(run_dir / CHECKPOINT_DIR, keep=cfg.checkpoint.keep)
+    if not resume and ckpt.latest_step() is not None:
+        ckpt.close()
+        raise CheckpointError(
+            f"{run_dir} already holds checkpoints of a run; continue it with resume={run_dir}, or "
+            "choose a new run dir (nothing was changed)"
+        )
     env = cfg.env.make()
     specs = scale.expand(cfg)
     n_agents = len(specs)
@@ -196,9 +229,7 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
         split = mesh if scale.learner_splits(cfg, mesh) else None
         learner = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, n_chunks * k, mesh=split)
         init_key = jax.random.PRNGKey(cfg.seed)
-    ckpt = Checkpointer(run_dir / CHECKPOINT_DIR, keep=cfg.checkpoint.keep)
     config = cfg.to_dict()
-    (run_dir / "config.json").write_text(json.dumps(config, indent=2))
 
     shardings = None
     if mesh is not None:
@@ -211,16 +242,20 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
     # per agent: where its evaluation return first reached train.stop_at_return (None: not yet)
     reached: list[dict | None] = [None] * n_agents
     if resume:
-        state, meta = ckpt.restore(state, config)
+        try:
+            state, meta = ckpt.restore_newest(lambda step: ckpt.restore(state, config, step), resume_step)
+        except CheckpointError:
+            ckpt.close()
+            raise
         chunk, wall = int(meta["chunk"]), float(meta["wall_s"])
         watch = CollapseWatch(n_agents, history=meta.get("eval_history"))
         reached = list(meta.get("reached") or reached)
+        _set_aside_after(ckpt, run_dir, chunk)
         print(f"[fastrl] resumed {run_dir} at chunk {chunk} ({int(meta['env_steps']):,d} env steps)")
-    elif ckpt.latest_step() is not None:
-        raise CheckpointError(
-            f"{run_dir} already holds checkpoints; pass resume=true to continue that run, or choose "
-            "a new run_dir (nothing was overwritten)"
-        )
+    # The run is valid and owns its folder: only now does anything get written into it.
+    _write_text(run_dir / "config.json", json.dumps(config, indent=2))
+    for name, text in record.items():
+        _write_text(run_dir / name, text)
     state = _unalias(state)
     if shardings is not None:
         state = jax.device_put(state, shardings)
@@ -345,6 +380,9 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
                     break
                 if stopping:
                     status = "stopped"
+                    why = "Ctrl-C" if stop.set else f"train.stop_after_chunks={cfg.train.stop_after_chunks}"
+                    print(f"[fastrl] stopped by {why} after chunk {chunk} of {n_chunks}, checkpoint saved; "
+                          f"continue with: python -m fastrl.train resume={run_dir}", flush=True)  # fmt: skip
                     break
     finally:
         for out in outs:
@@ -352,7 +390,7 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
             out.close()
         ckpt.close()
     summary = {"status": status, "chunks": chunk, "env_steps": _env_steps(state), "compile_s": compile_s,
-               "wall_s": wall, "last": row, "run_dir": str(run_dir)}  # fmt: skip
+               "wall_s": wall, "last": row, "run_dir": str(run_dir), "interrupted": stop.set}  # fmt: skip
     summary["collapsed"] = watch.collapsed if n_agents > 1 else watch.collapsed[0]
     summary["best_eval_return"] = watch.best if n_agents > 1 else watch.best[0]
     if cfg.train.stop_at_return is not None:
@@ -362,6 +400,77 @@ def train(cfg: RunConfig, run_dir: str | Path, resume: bool = False, on_chunk=No
         summary["diverged_agents"] = [s.tag for s, d in zip(specs, diverged, strict=True) if d]
         summary["collapsed_agents"] = [s.tag for s, c in zip(specs, watch.collapsed, strict=True) if c]
     return summary
+
+
+class RunDirError(RuntimeError):
+    """The run folder cannot be used (another process is running in it); the message says why."""
+
+
+class RunDirLock:
+    """Exclusive use of a run folder while a run writes into it.
+
+    An ``flock`` on ``RUN_DIR/.lock``, which the OS releases when the process ends, however it
+    ends, so a crashed run never leaves the folder locked. A second run started on the same
+    folder (two runs in the same second, or a resume while the run is still going) fails at
+    once, before writing anything. Only process 0 of a multi-host run takes it (the others
+    share the folder), and where ``fcntl`` does not exist (Windows) no lock is taken.
+    """
+
+    def __init__(self, run_dir: Path):
+        self.path = run_dir / ".lock"
+        self._file = None
+
+    def __enter__(self):
+        try:
+            import fcntl
+        except ImportError:
+            return self
+        if jax.process_index() != 0:
+            return self
+        f = self.path.open("a+")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.seek(0)
+            owner = f.read().strip() or "another process"
+            f.close()
+            raise RunDirError(
+                f"{self.path.parent} is in use by another fastrl run ({owner}); wait for it to end or "
+                "choose another run dir (nothing was changed)"
+            ) from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
+        f.flush()
+        self._file = f
+        return self
+
+    def __exit__(self, *exc):
+        if self._file is not None:
+            self._file.close()  # closing releases the flock
+            self._file = None
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Writes ``text`` to ``path`` through a temporary file and a rename, so a crash mid-write
+    never leaves a half-written file in place of a good one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _set_aside_after(ckpt: Checkpointer, run_dir: Path, step: int) -> None:
+    """Moves the checkpoints newer than ``step`` (unreadable ones, or a branch the user resumed
+    from before) and a copy of ``metrics.csv`` out of the way, into
+    ``run_dir/checkpoints_set_aside/<time>/``: the resumed run will save those step numbers
+    again, and nothing a user saved is deleted."""
+    aside = ckpt.set_aside_after(step, run_dir / "checkpoints_set_aside")
+    if aside is None:
+        return
+    if (run_dir / "metrics.csv").exists():
+        shutil.copy2(run_dir / "metrics.csv", aside / "metrics.csv")
+    print(f"[fastrl] checkpoints after chunk {step} moved to {aside}", file=sys.stderr)
 
 
 class CollapseWatch:

@@ -149,10 +149,14 @@ class Env:
         timestep: float | None = None,
         terminate_when_unhealthy: bool = True,
     ):
-        self.episode_length = int(episode_length or self.default_episode_length)
-        self.frame_skip = int(frame_skip or self.default_frame_skip)
-        if self.episode_length < 1 or self.frame_skip < 1:
-            raise ValueError(f"{self.name}: episode_length and frame_skip must be >= 1")
+        # ``None`` means the env's default; anything else, 0 included, is the user's value.
+        self.episode_length = self.default_episode_length if episode_length is None else episode_length
+        self.frame_skip = self.default_frame_skip if frame_skip is None else frame_skip
+        for key in ("episode_length", "frame_skip"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or int(value) != value or value < 1:
+                raise ValueError(f"{self.name}: {key} must be an integer >= 1, got {value!r}")
+            setattr(self, key, int(value))
         weights = dict(self.default_weights)
         for key, value in (reward_weights or {}).items():
             if key not in weights:
@@ -285,8 +289,13 @@ class Env:
           The next state. If the episode ended, ``obs``/``data`` already belong to a new
           episode and ``final_obs`` is the finished episode's last observation.
         """
-        model = self._model(state.params)
         action = jnp.asarray(action, state.obs.dtype)
+        if action.shape != (self.action_size,):  # static: checked while tracing
+            raise ValueError(
+                f"{self.name}: step takes one env's action of shape ({self.action_size},), got "
+                f"{action.shape}; for a batch, jax.vmap(env.step) over states and actions"
+            )
+        model = self._model(state.params)
         before = state.data
 
         def substep(data, _):

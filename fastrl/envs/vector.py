@@ -6,8 +6,9 @@ episode ends, the returned observation is already the new episode's first one, a
 ``infos["final_obs"]`` (an object array, ``None`` where not done, with the ``"_final_obs"``
 mask) holds the finished episode's last observation; ``infos["episode"]`` carries ``r``
 (return) and ``l`` (length) of finished episodes with mask ``"_episode"``, as Gymnasium's
-``RecordEpisodeStatistics`` does. Observations are float64 and actions float32, as in
-Gymnasium's MuJoCo spaces.
+``RecordEpisodeStatistics`` does. ``infos["diverged"]`` flags the envs whose physics diverged
+on this step (NaN or inf actions, say): they end with reward 0 and restart. Observations are
+float64 and actions float32, as in Gymnasium's MuJoCo spaces.
 
 ``send(actions, env_ids)`` / ``recv()`` is EnvPool's asynchronous pair: ``send`` dispatches the
 compiled step and returns at once (JAX dispatch is asynchronous), so the caller's own work
@@ -130,7 +131,10 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         obs = np.asarray(s.obs, np.float64)[ids]
         term = np.asarray(s.terminated)[ids]
         trunc = np.asarray(s.truncated)[ids]
-        infos: dict[str, Any] = {"env_id": ids}
+        # A step whose physics diverged (e.g. NaN or inf actions) ends and resets that env with
+        # reward 0; the flag says so, as make_gym's info["diverged"] and the functional env do.
+        diverged = np.asarray(s.metrics["diverged"])[ids] > 0
+        infos: dict[str, Any] = {"env_id": ids, "diverged": diverged, "_diverged": np.ones_like(diverged)}
         done = term | trunc
         if done.any():
             final = np.full(ids.size, None, dtype=object)
@@ -176,7 +180,10 @@ class GymEnv(gymnasium.Env):
     def step(self, action):
         if self._state is None:
             raise RuntimeError("call reset() before step()")
-        self._state = self._step_fn(self._state, jnp.asarray(action, jnp.float32))
+        action = np.asarray(action, np.float32)
+        if action.shape != (self.env.action_size,):
+            raise ValueError(f"action has shape {action.shape}; expected ({self.env.action_size},)")
+        self._state = self._step_fn(self._state, jnp.asarray(action))
         s = jax.device_get(self._state)
         obs = np.asarray(s.final_obs, np.float64)  # the episode's own last observation
         info = {k: float(v) for k, v in s.metrics.items()}

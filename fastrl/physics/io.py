@@ -274,6 +274,11 @@ def model_from_mujoco(
         raise ValueError(f"solver_iterations={solver_iterations}; it must be at least 1")
     if nconmax is not None and nconmax < 1:
         raise ValueError(f"nconmax={nconmax}; it must be at least 1")
+    if m.nv == 0:  # a world of static geoms only: nothing can move, so there is nothing to step
+        raise ValueError(
+            "the model has no degrees of freedom (no joints or free bodies): there is nothing to "
+            "simulate; give at least one body a <joint> or <freejoint>"
+        )
     _check_supported(m)
     if integrator is not None:
         if integrator not in _INTEGRATORS:

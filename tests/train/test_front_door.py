@@ -113,7 +113,7 @@ def test_resume_2_plus_2_chunks_equals_4_chunks_bit_for_bit(tmp_path):
     assert (split / "config.json").exists()
 
 
-def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path):
+def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path, capsys):
     def interrupt(chunk, row):
         if chunk == 1:
             os.kill(os.getpid(), signal.SIGINT)
@@ -123,8 +123,13 @@ def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path):
     cfg = compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}"])
     rc = typed(QUICK_RESUME)
     out = runner.train(rc, tmp_path, on_chunk=interrupt)
-    assert out["status"] == "stopped" and out["chunks"] == 1
+    assert out["status"] == "stopped" and out["chunks"] == 1 and out["interrupted"]
     assert (tmp_path / "checkpoints" / "1").is_dir()
+    # the stop says how to continue (and the command line exits 130, the shell's Ctrl-C code)
+    assert (
+        f"stopped by Ctrl-C after chunk 1 of 4, checkpoint saved; continue with: python -m "
+        f"fastrl.train resume={tmp_path}" in capsys.readouterr().out
+    )
     del cfg
 
 
