@@ -7,6 +7,8 @@ of the return, and can show the first episode:
   --video out.gif    a video rendered by MuJoCo (.gif, or .mp4 with imageio-ffmpeg); needs EGL
                      or OSMesa (exit status 2, with a hint, when neither works)
   --export out.npz   its qpos per step, the env name and timestep, for replay in MuJoCo
+  --reference        also score the policy in MuJoCo C (Gymnasium's own v5 env for the standard
+                     suite) from the same initial states, side by side (fastrl.reference)
 """
 
 from __future__ import annotations
@@ -79,6 +81,10 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, help="show at most this many steps of it (default: all)")
     parser.add_argument("--agent", help="of a batch run (train.num_seeds > 1): the agent's index or tag")
     parser.add_argument(
+        "--reference", action="store_true",
+        help="also score it in MuJoCo C (Gymnasium's v5 env for the standard suite), side by side",
+    )  # fmt: skip
+    parser.add_argument(
         "--step", type=int, help="the checkpoint (chunk) to evaluate (default: the newest that can be read)"
     )
     args = parser.parse_args(argv)
@@ -96,6 +102,16 @@ def main(argv=None) -> int:
         f"{ret.mean():.2f} +- {ret.std():.2f} over {args.episodes} episodes (length {length.mean():.0f})"
         + "".join(f", {k} {float(v.mean()):.2f}" for k, v in final.items())
     )
+    if args.reference or rc.env.integrator is not None or rc.env.solver_iterations is not None:
+        from fastrl import reference
+
+        if args.reference:
+            policy = lambda obs: learner.act(params, obs)  # noqa: E731
+            scores = reference.Scores(ret, length, "fastrl")
+            print(reference.side_by_side(reference.compare(rc.env, policy, args.episodes, args.seed, scores)))
+        else:  # e.g. the Ant PPO run's Euler, whose scores differ from Gymnasium's RK4 Ant's
+            label = reference.physics_label(env)
+            print(f"(at the run's physics, {label}; --reference adds the asset's and MuJoCo C's)")
     if args.export or args.html or args.video:
         return _show(args, rc, env, learner, params, int(state.env_steps))
     return 0
