@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fastrl import agents
+from fastrl import agents, compile_cache
 from fastrl.checkpoint import CheckpointError
 from fastrl.policy import load_run
 
@@ -88,6 +88,8 @@ def main(argv=None) -> int:
         "--step", type=int, help="the checkpoint (chunk) to evaluate (default: the newest that can be read)"
     )
     args = parser.parse_args(argv)
+    if not compile_cache.is_enabled():
+        compile_cache.enable()
     agent = int(args.agent) if args.agent is not None and args.agent.isdigit() else args.agent
     try:
         rc, env, learner, state = load_run(args.run_dir, step=args.step, agent=agent)

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fastrl import agents, scale
+from fastrl import agents, compile_cache, scale
 from fastrl.checkpoint import Checkpointer, CheckpointError
 from fastrl.config import RunConfig
 
@@ -266,9 +266,13 @@ def _train(cfg, run_dir: Path, resume: bool, on_chunk, resume_step, record) -> d
             s = jax.lax.with_sharding_constraint(s, shardings)
         return s, metrics
 
-    t0 = time.perf_counter()
-    compiled = jax.jit(run_chunk, donate_argnums=0).lower(state).compile()
+    t0, cache_before = time.perf_counter(), compile_cache.counts()
+    lowered = jax.jit(run_chunk, donate_argnums=0).lower(state)
+    trace_s = time.perf_counter() - t0
+    compiled = lowered.compile()
     compile_s = time.perf_counter() - t0
+    cache_note = compile_cache.describe(cache_before, compile_cache.is_enabled())
+    cache_note = f"{trace_s:.1f}s tracing, {cache_note}"
     # A single run's evaluation steps its envs on every device (an Ant evaluation is 1000
     # sequential steps of a small batch: on one of 2 CPU devices it took ~12 s per chunk).
     eval_mesh = (
@@ -285,7 +289,7 @@ def _train(cfg, run_dir: Path, resume: bool, on_chunk, resume_step, record) -> d
     batch_note = f" x {n_agents} agents in one program" if n_agents > 1 else ""
     print(
         f"[fastrl] {cfg.env.name} / {cfg.algo_name}: {n_chunks} chunks x {k} updates x "
-        f"{steps_per_update:,d} env steps{batch_note}; chunk compiled in {compile_s:.1f}s on "
+        f"{steps_per_update:,d} env steps{batch_note}; chunk compiled in {compile_s:.1f}s ({cache_note}) on "
         f"{scale.describe(shardings, mesh)}; run dir {run_dir}"
     )
     if n_agents > 1:

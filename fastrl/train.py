@@ -20,7 +20,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from fastrl import agents, runner, xla_flags
+from fastrl import agents, compile_cache, runner, xla_flags
 from fastrl.checkpoint import Checkpointer, CheckpointError
 from fastrl.config import ConfigError, RunConfig, identity_diff
 
@@ -268,6 +268,8 @@ def main(cfg: DictConfig) -> float | None:
     hc = HydraConfig.get()
     output_dir = Path(hc.runtime.output_dir)
     summary = None
+    if not compile_cache.is_enabled():  # a cache the user set (JAX_COMPILATION_CACHE_DIR) is kept
+        compile_cache.enable()  # FASTRL_COMPILE_CACHE= (empty) turns it off
     try:
         summary = run(cfg, split_cpu=True, overrides=list(hc.overrides.task))
     except (ConfigError, CheckpointError, runner.RunDirError) as e:

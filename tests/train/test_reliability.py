@@ -112,11 +112,16 @@ def test_command_line_runs_load_anywhere_and_rejected_starts_change_nothing(tmp_
 
 
 def test_two_runs_started_in_the_same_second_get_their_own_folders(tmp_path):
+    # Both also share a fresh persistent compilation cache (FASTRL_COMPILE_CACHE), writing the
+    # same entry at once; a third identical launch then reads its chunk from it.
+    env = _env(FASTRL_CPU_DEVICES="1", FASTRL_COMPILE_CACHE=str(tmp_path / "cache"))
+    env.pop("JAX_COMPILATION_CACHE_DIR")
+    args = [sys.executable, "-m", "fastrl.train", *QUICK_CLI, "train.total_env_steps=512"]
     procs = [
         subprocess.Popen(
-            [sys.executable, "-m", "fastrl.train", *QUICK_CLI, "train.total_env_steps=512", f"seed={s}"],
+            [*args, f"seed={s}"],
             cwd=tmp_path,
-            env=_env(FASTRL_CPU_DEVICES="1"),
+            env=env,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -124,14 +129,25 @@ def test_two_runs_started_in_the_same_second_get_their_own_folders(tmp_path):
         for s in (0, 1)
     ]
     for p in procs:
-        _, err = p.communicate(timeout=300)
+        out, err = p.communicate(timeout=300)
         assert p.returncode == 0, err
+        assert "compilation cache miss" in out or "compilation cache hit" in out, out
     dirs = sorted((tmp_path / "runs" / "inverted_pendulum-ppo").iterdir())
     assert len(dirs) == 2
     seeds = sorted(load_run(d)[0].seed for d in dirs)
     assert seeds == [0, 1]
     for d in dirs:  # each folder holds one run: one row per chunk
         assert len((d / "metrics.csv").read_text().strip().splitlines()) == 1 + 2
+    third = subprocess.run([*args, "seed=2"], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert "compilation cache hit" in third.stdout, third.stdout + third.stderr
+    off = subprocess.run(
+        [*args, "seed=3"],
+        cwd=tmp_path,
+        env={**env, "FASTRL_COMPILE_CACHE": ""},
+        capture_output=True,
+        text=True,
+    )
+    assert "compilation cache off" in off.stdout, off.stdout + off.stderr
 
 
 def test_a_run_folder_in_use_is_refused_before_anything_is_written(tmp_path):
