@@ -72,9 +72,11 @@ def _linear_policy(env, scale=0.3, seed=0):
     return lambda obs: jnp.tanh(obs @ w)
 
 
-@pytest.mark.parametrize("name", ["reacher", "hopper", "ant_goal"])
+@pytest.mark.parametrize("name", ["reacher", "ant_goal"])
 def test_reference_simulators_score_short_episodes_as_fastrl_does(name):
-    """Each simulator the env supports, from fastrl's initial states, with a fixed policy."""
+    """Each simulator the env supports, from fastrl's initial states, with a fixed policy: both
+    for a contact-free arm, MuJoCo C with fastrl's obs/reward for a contact scene (the hopper's
+    Gymnasium and MuJoCo C scores are checked through the command line above)."""
     env = envs.make(name, episode_length=15)
     policy = _linear_policy(env)
     key = jax.random.PRNGKey(1)
