@@ -1,4 +1,8 @@
-"""Constraint rows: contacts (pyramidal friction cone) and joint limits, with MuJoCo's soft model.
+"""Constraint rows: dof friction loss, joint limits and contacts (pyramidal friction cone), with
+MuJoCo's soft model, in MuJoCo's row order (friction loss, limits, contacts).
+
+A dof with ``frictionloss > 0`` owns one always-active row (``J = e_dof``, ``pos = 0``) whose
+force the solver bounds to ``[-frictionloss, frictionloss]`` (``solver``: a Huber-like cost).
 
 Every limited joint and every *contact slot* owns a fixed block of rows; a row whose distance is
 beyond its margin is inactive (masked), so the row count is static. MuJoCo makes rows only for the
@@ -44,6 +48,11 @@ def default_nconmax(ncand: int) -> int:
     168 rows where 77 hold every contact it makes; the step runs 1.9x faster).
     """
     return max(MIN_NCONMAX, -(-ncand // 4))
+
+
+def friction_dofs(m: Model) -> np.ndarray:
+    """(nfric,) the dof of every friction-loss row, in row order (they come first)."""
+    return np.asarray(m.friction_dofs, np.int64)
 
 
 def limited_joints(m: Model) -> np.ndarray:
@@ -95,12 +104,13 @@ def contact_efc_address(m: Model) -> np.ndarray:
     ``CONTACT_CONDIMS`` order; ``Data.contact_id`` names the candidate each slot holds.
     """
     rows = rows_per_slot(m)
-    return limited_joints(m).size + np.cumsum(rows) - rows
+    return friction_dofs(m).size + limited_joints(m).size + np.cumsum(rows) - rows
 
 
 def sizes(m: Model) -> tuple[int, int]:
     """(ncon, nefc): candidate contacts and constraint rows; static for a model."""
-    return contact_layout(m).size, int(rows_per_slot(m).sum()) + limited_joints(m).size
+    nrows = friction_dofs(m).size + limited_joints(m).size + int(rows_per_slot(m).sum())
+    return contact_layout(m).size, nrows
 
 
 def point_jacobian(m: Model, d: Data, bodies: np.ndarray, points: jax.Array) -> jax.Array:
@@ -174,7 +184,7 @@ def stiffness_damping(m: Model, solref: jax.Array, solimp: jax.Array) -> tuple[j
 
 
 def make_constraint(m: Model, d: Data) -> Data:
-    """Assembles every constraint row (limits first, then contacts, as MuJoCo orders them).
+    """Assembles every constraint row (friction loss, limits, contacts: MuJoCo's order).
 
     Fills ``efc_*``, ``contact_id`` (the candidate in each contact slot) and ``ncon`` (candidates
     within their margin; the rows are MuJoCo's exactly while ``ncon <= nconmax``).
@@ -182,8 +192,9 @@ def make_constraint(m: Model, d: Data) -> Data:
     dtype = d.qvel.dtype
     jacs, poss, arefs, dees = [], [], [], []
 
-    def add(jac, pos, margin, solref, solimp, diag, repeat=1):
-        """Rows of constraints that each own ``repeat`` rows sharing pos, margin and impedance."""
+    def add(jac, pos, margin, solref, solimp, diag, repeat=1, always=False):
+        """Rows of constraints that each own ``repeat`` rows sharing pos, margin and impedance;
+        ``always``: active whatever the distance (friction loss), else while ``pos < margin``."""
         r = pos - margin
         imp = impedance(solimp, r)
         k, b = stiffness_damping(m, solref, solimp)
@@ -193,8 +204,14 @@ def make_constraint(m: Model, d: Data) -> Data:
         jacs.append(jac)
         poss.append(rep(pos))
         arefs.append(-rep(b) * vel - rep(k * imp * r))
-        active = rep(r < 0)
+        active = True if always else rep(r < 0)
         dees.append(jnp.where(active, 1 / rep(regulariser), 0.0))
+
+    fric = friction_dofs(m)
+    if fric.size:
+        zero = jnp.zeros(fric.size, dtype)
+        jac = jnp.eye(m.nv, dtype=dtype)[fric]
+        add(jac, zero, zero, m.dof_solref[fric], m.dof_solimp[fric], m.dof_invweight0[fric], always=True)
 
     lim = limited_joints(m)
     if lim.size:

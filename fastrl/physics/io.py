@@ -66,10 +66,6 @@ def _check_supported(m: mujoco.MjModel) -> None:
         problems.append(f"the ellipsoid fluid model ({where} has fluidshape='ellipsoid')")
     if _nonzero(m, "body_gravcomp"):
         problems.append(f"gravity compensation ({_first(m, m.body_gravcomp != 0, obj.mjOBJ_BODY)})")
-    if _nonzero(m, "dof_frictionloss") and not flags & _DSBL.mjDSBL_FRICTIONLOSS:
-        mask = np.zeros(m.njnt, bool)
-        mask[m.dof_jntid[m.dof_frictionloss > 0]] = True
-        problems.append(f"dof friction loss ({_first(m, mask, obj.mjOBJ_JOINT)})")
     for field in ("dof_dampingpoly", "jnt_stiffnesspoly", "jnt_springyield"):
         if _nonzero(m, field):
             problems.append(f"nonlinear joint passive forces ({field})")
@@ -161,6 +157,10 @@ def contacts_enabled(m: mujoco.MjModel) -> bool:
 
 def limits_enabled(m: mujoco.MjModel) -> bool:
     return not m.opt.disableflags & (_DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT)
+
+
+def frictionloss_enabled(m: mujoco.MjModel) -> bool:
+    return not m.opt.disableflags & (_DSBL.mjDSBL_FRICTIONLOSS | _DSBL.mjDSBL_CONSTRAINT)
 
 
 def candidate_geom_pairs(m: mujoco.MjModel) -> list[tuple[int, int]]:
@@ -311,6 +311,7 @@ def model_from_mujoco(
         jnt_type=i32(m.jnt_type), jnt_qposadr=i32(m.jnt_qposadr), jnt_dofadr=i32(m.jnt_dofadr),
         jnt_bodyid=i32(m.jnt_bodyid), jnt_limited=i32(jnt_limited),
         dof_bodyid=i32(m.dof_bodyid), dof_jntid=i32(m.dof_jntid), dof_parentid=i32(m.dof_parentid),
+        friction_dofs=i32(np.flatnonzero(m.dof_frictionloss > 0) if frictionloss_enabled(m) else []),
         geom_bodyid=i32(m.geom_bodyid), geom_type=i32(m.geom_type),
         geom_contype=i32(m.geom_contype), geom_conaffinity=i32(m.geom_conaffinity),
         site_bodyid=i32(m.site_bodyid), body_fluid=i32(_fluid_bodies(m)),
@@ -332,6 +333,7 @@ def model_from_mujoco(
         jnt_range=f(m.jnt_range), jnt_actfrcrange=f(m.jnt_actfrcrange),
         qpos0=f(m.qpos0), qpos_spring=f(m.qpos_spring),
         dof_armature=f(m.dof_armature), dof_damping=f(m.dof_damping),
+        dof_frictionloss=f(m.dof_frictionloss), dof_solref=f(m.dof_solref), dof_solimp=f(m.dof_solimp),
         geom_pos=f(m.geom_pos), geom_quat=f(m.geom_quat), geom_size=f(m.geom_size),
         geom_friction=f(m.geom_friction), site_pos=f(m.site_pos), site_quat=f(m.site_quat),
         actuator_gear=f(m.actuator_gear), actuator_ctrlrange=f(m.actuator_ctrlrange),

@@ -4,7 +4,9 @@ MuJoCo's soft constraints turn the constrained dynamics into the unconstrained c
 
     qacc = argmin_a  1/2 (a - a0)^T M (a - a0) + sum_i 1/2 D_i min(J_i a - aref_i, 0)^2
 
-with ``a0`` the unconstrained acceleration (pyramidal contacts and limits; ``D = 1/R``). The
+with ``a0`` the unconstrained acceleration (pyramidal contacts and limits; ``D = 1/R``), plus,
+for each friction-loss row, the Huber-like ``1/2 D jar^2`` inside ``|D jar| < loss`` and
+``loss |jar| - loss^2 / 2D`` outside it (a force bounded by the friction loss). The
 cost is piecewise quadratic, so Newton's method finds the exact minimiser once it has the right
 active set; it is MuJoCo's default for that reason, and with a static iteration count the
 solution should stop changing before the count runs out. Iteration counts (``Model.solver_iterations``)
@@ -36,6 +38,8 @@ from fastrl.physics.math import matvec
 from fastrl.physics.types import Data, Model
 
 LINESEARCH_ITERATIONS = 3
+# With friction-loss rows (see ``_bracketed_newton``).
+BRACKETED_LINESEARCH_ITERATIONS = 10
 
 
 def hessian_structure(m: Model) -> tuple[tuple[int, ...], ...]:
@@ -57,10 +61,15 @@ def hessian_structure(m: Model) -> tuple[tuple[int, ...], ...]:
 class _Rows(typing.NamedTuple):
     """The constraint rows split the way the solver uses them (one environment).
 
-    Limit rows are signed unit vectors ``sign * e_dof`` at static dofs, so products with them are
-    reads of single dofs; contact rows are dense (ncon_rows, nv).
+    Friction-loss rows are unit vectors ``e_dof`` and limit rows signed unit vectors
+    ``sign * e_dof``, both at static dofs, so products with them are reads of single dofs;
+    contact rows are dense (ncon_rows, nv).
     """
 
+    fr_dofs: np.ndarray  # (nfric,) static
+    fr_aref: jax.Array
+    fr_D: jax.Array
+    fr_loss: jax.Array  # (nfric,) the friction loss: the most force a row can give
     lim_dofs: np.ndarray  # (nlim,) static
     lim_sign: jax.Array  # (nlim,)
     lim_aref: jax.Array
@@ -69,47 +78,67 @@ class _Rows(typing.NamedTuple):
     aref: jax.Array
     dd: jax.Array
 
-    def j(self, a: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """``J a`` of the limit rows and of the contact rows."""
-        return self.lim_sign * a[self.lim_dofs], self.jac @ a
+    def j(self, a: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """``J a`` of the friction-loss, limit and contact rows."""
+        return a[self.fr_dofs], self.lim_sign * a[self.lim_dofs], self.jac @ a
 
-    def jar(self, a: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """``J a - aref`` of the limit rows and of the contact rows."""
-        jl, jc = self.j(a)
-        return jl - self.lim_aref, jc - self.aref
+    def jar(self, a: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """``J a - aref`` of the friction-loss, limit and contact rows."""
+        jf, jl, jc = self.j(a)
+        return jf - self.fr_aref, jl - self.lim_aref, jc - self.aref
 
-    def jt(self, lim: jax.Array, con: jax.Array) -> jax.Array:
-        """``J^T f`` for row values ``(lim, con)``."""
-        out = con @ self.jac if self.aref.size else 0.0
+    def jt(self, fr: jax.Array, lim: jax.Array, con: jax.Array) -> jax.Array:
+        """``J^T f`` for row values ``(fr, lim, con)``."""
+        nv = self.jac.shape[-1]
+        out = con @ self.jac if self.aref.size else jnp.zeros(nv, fr.dtype)
         if self.lim_dofs.size:
-            out = out + jnp.zeros(self.jac.shape[-1], lim.dtype).at[self.lim_dofs].add(self.lim_sign * lim)
+            out = out.at[self.lim_dofs].add(self.lim_sign * lim)
+        if self.fr_dofs.size:
+            out = out.at[self.fr_dofs].add(fr)
         return out
+
+    def friction_force(self, jf: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The friction-loss rows' ``-force`` at residual ``jf`` and their quadratic-zone mask.
+
+        MuJoCo's friction-loss cost is Huber-like: ``D jar^2 / 2`` while ``|D jar| < loss``
+        (the quadratic zone), else linear with slope ``loss`` (the force saturates at the
+        friction loss, the zones MuJoCo calls LINEARNEG/LINEARPOS).
+        """
+        quad = jnp.abs(self.fr_D * jf) < self.fr_loss
+        return jnp.clip(self.fr_D * jf, -self.fr_loss, self.fr_loss), quad
 
 
 def _rows(m: Model, d: Data) -> _Rows:
+    fr = constraint.friction_dofs(m)
     dofs = constraint.limit_dofs(m)
-    n = dofs.size
-    return _Rows(dofs, d.efc_J[np.arange(n), dofs], d.efc_aref[:n], d.efc_D[:n], d.efc_J[n:],
-                 d.efc_aref[n:], d.efc_D[n:])  # fmt: skip
+    nf, n = fr.size, fr.size + dofs.size
+    return _Rows(fr, d.efc_aref[:nf], d.efc_D[:nf], m.dof_frictionloss[fr],
+                 dofs, d.efc_J[np.arange(nf, n), dofs], d.efc_aref[nf:n], d.efc_D[nf:n],
+                 d.efc_J[n:], d.efc_aref[n:], d.efc_D[n:])  # fmt: skip
 
 
 def _cost(rows: _Rows, d: Data, a: jax.Array) -> jax.Array:
-    jl, jc = rows.jar(a)
+    jf, jl, jc = rows.jar(a)
     da = a - d.qacc_smooth
+    f, dd = rows.fr_loss, rows.fr_D
+    friction = jnp.where(jnp.abs(dd * jf) < f, 0.5 * dd * jf**2, f * jnp.abs(jf) - 0.5 * f**2 / dd)
     return 0.5 * (
         jnp.sum(da * matvec(d.qM, da))
         + jnp.sum(rows.lim_D * jnp.minimum(jl, 0.0) ** 2)
         + jnp.sum(rows.dd * jnp.minimum(jc, 0.0) ** 2)
-    )
+    ) + jnp.sum(friction)
 
 
-def _quadratic(rows: _Rows, d: Data, a: jax.Array, jl: jax.Array, jc: jax.Array):
-    """Gradient and Hessian of the cost at ``a``, given its row residuals ``J a - aref``.
+def _quadratic(rows: _Rows, d: Data, a: jax.Array, res: tuple[jax.Array, jax.Array, jax.Array]):
+    """Gradient and Hessian of the cost at ``a``, given its row residuals ``res = J a - aref``.
 
-    ``H = M + J^T diag(D * active) J``; limit rows (signed unit vectors) add to the diagonal.
+    ``H = M + J^T diag(D * quadratic) J``; friction-loss and limit rows (unit vectors) add to
+    the diagonal.
     """
+    jf, jl, jc = res
     quad_lim, quad = rows.lim_D * (jl < 0), rows.dd * (jc < 0)
-    grad = matvec(d.qM, a - d.qacc_smooth) + rows.jt(quad_lim * jl, quad * jc)
+    neg_fr, quad_fr = rows.friction_force(jf)
+    grad = matvec(d.qM, a - d.qacc_smooth) + rows.jt(neg_fr, quad_lim * jl, quad * jc)
     hess = d.qM
     if quad.size:
         # An unrolled sum of outer products: one fused elementwise loop, 4-5x faster on XLA:CPU
@@ -118,39 +147,78 @@ def _quadratic(rows: _Rows, d: Data, a: jax.Array, jl: jax.Array, jc: jax.Array)
         # overall), which is why H is carried across the Newton loop (see ``solve``).
         scaled = rows.jac * quad[:, None]
         hess = hess + sum(scaled[r][:, None] * rows.jac[r][None, :] for r in range(quad.shape[0]))
-    if rows.lim_dofs.size:
+    if rows.lim_dofs.size or rows.fr_dofs.size:
         nv = d.qM.shape[-1]
-        hess = hess + jnp.diag(jnp.zeros(nv, quad_lim.dtype).at[rows.lim_dofs].add(quad_lim))
+        diag = jnp.zeros(nv, hess.dtype).at[rows.lim_dofs].add(quad_lim)
+        diag = diag.at[rows.fr_dofs].add(rows.fr_D * quad_fr)
+        hess = hess + jnp.diag(diag)
     return grad, hess
 
 
-def _newton_step(structure, rows: _Rows, d: Data, carry):
-    a, jl, jc, grad, hess = carry
-    step = -smooth.solve_structured(structure, hess, grad)
-    # Exact line search on phi(alpha) = cost(a + alpha step), piecewise quadratic and convex.
-    sl, sc = rows.j(step)  # directly, not jar(step) + aref: that cancels to rounding noise
-    s_m_s = jnp.sum(step * matvec(d.qM, step))
-    s_m_a = jnp.sum(step * matvec(d.qM, a - d.qacc_smooth))
-    alpha = jnp.ones((), a.dtype)
+def _newton_1d(slope_curve, dtype) -> jax.Array:
+    """1-D Newton steps on phi from alpha = 1, kept >= 0: exact in a few steps where every row's
+    cost is quadratic or zero along the search line (limits and contacts)."""
+    alpha = jnp.ones((), dtype)
     for _ in range(LINESEARCH_ITERATIONS):
-        slope, curve = alpha * s_m_s + s_m_a, s_m_s
-        for jar, js, dd in ((jl, sl, rows.lim_D), (jc, sc, rows.dd)):
-            trial = jar + alpha * js
-            neg = dd * (trial < 0)
-            slope = slope + jnp.sum(neg * trial * js)
-            curve = curve + jnp.sum(neg * js * js)
+        slope, curve = slope_curve(alpha)
         # curve >= step' M step > 0 unless the step is exactly zero (then slope is zero too). A
         # fixed floor such as 1e-30 is not safe: at convergence the step is at rounding level
         # (|step| ~ 1e-14 in float64, curve < 1e-30), and dividing the rounding noise of slope by
         # the floor gave alpha ~ 1e13, throwing a converged iterate far off.
         alpha = jnp.maximum(alpha - slope / jnp.maximum(curve, jnp.finfo(curve.dtype).tiny), 0.0)
+    return alpha
+
+
+def _bracketed_newton(slope_curve, dtype) -> jax.Array:
+    """1-D Newton steps on phi kept inside a bracket of the minimiser, bisecting when a step
+    leaves it. Friction-loss rows make phi linear in places (their force saturates), where
+    the curvature drops and plain Newton steps overshoot back and forth past the kink (seen
+    stalling Newton's method at alpha = 0 with the gradient far from zero)."""
+    alpha = jnp.ones((), dtype)
+    lo, hi = jnp.zeros((), dtype), jnp.full((), jnp.inf, dtype)
+    for _ in range(BRACKETED_LINESEARCH_ITERATIONS):
+        slope, curve = slope_curve(alpha)
+        lo = jnp.where(slope < 0, alpha, lo)
+        hi = jnp.where(slope > 0, alpha, hi)
+        newton = alpha - slope / jnp.maximum(curve, jnp.finfo(curve.dtype).tiny)
+        inside = (newton > lo) & (newton < hi)
+        bisect = jnp.where(jnp.isfinite(hi), 0.5 * (lo + hi), 2 * alpha)
+        alpha = jnp.where(slope == 0, alpha, jnp.where(inside, newton, bisect))
+    return alpha
+
+
+def _newton_step(structure, rows: _Rows, d: Data, carry):
+    a, res, grad, hess = carry
+    step = -smooth.solve_structured(structure, hess, grad)
+    # Exact line search on phi(alpha) = cost(a + alpha step), piecewise quadratic and convex.
+    js = rows.j(step)  # directly, not jar(step) + aref: that cancels to rounding noise
+    s_m_s = jnp.sum(step * matvec(d.qM, step))
+    s_m_a = jnp.sum(step * matvec(d.qM, a - d.qacc_smooth))
+
+    def slope_curve(alpha):
+        """phi'(alpha) and phi''(alpha) (one-sided where a row changes zone)."""
+        slope, curve = alpha * s_m_s + s_m_a, s_m_s
+        for jar, s, dd in ((res[1], js[1], rows.lim_D), (res[2], js[2], rows.dd)):
+            trial = jar + alpha * s
+            neg = dd * (trial < 0)
+            slope = slope + jnp.sum(neg * trial * s)
+            curve = curve + jnp.sum(neg * s * s)
+        if rows.fr_dofs.size:
+            neg_fr, quad_fr = rows.friction_force(res[0] + alpha * js[0])
+            slope = slope + jnp.sum(neg_fr * js[0])
+            curve = curve + jnp.sum(rows.fr_D * quad_fr * js[0] ** 2)
+        return slope, curve
+
+    search = _bracketed_newton if rows.fr_dofs.size else _newton_1d
+    alpha = search(slope_curve, a.dtype)
     # The step length carries no gradient: where the iterate has converged the step is zero and
     # d(alpha) = d(slope) / curve is 0/0 (NaN in reverse mode). With alpha held fixed, the
     # derivative of a converged Newton iterate is the implicit-function derivative of the
     # minimiser (the full step is alpha = 1 there), which is what differentiating the solve means.
     alpha = jax.lax.stop_gradient(alpha)
-    a, jl, jc = a + alpha * step, jl + alpha * sl, jc + alpha * sc  # residuals are linear in a
-    return (a, jl, jc, *_quadratic(rows, d, a, jl, jc))
+    a = a + alpha * step
+    res = tuple(r + alpha * s for r, s in zip(res, js, strict=True))  # residuals are linear in a
+    return (a, res, *_quadratic(rows, d, a, res))
 
 
 def solve(m: Model, d: Data) -> Data:
@@ -165,10 +233,12 @@ def solve(m: Model, d: Data) -> Data:
     structure = hessian_structure(m)
     # The loop carries the next step's gradient and Hessian: a loop boundary is the one place
     # where XLA is sure to materialise H rather than fuse it into its readers.
-    jl, jc = rows.jar(a)
-    carry = (a, jl, jc, *_quadratic(rows, d, a, jl, jc))
+    res = rows.jar(a)
+    carry = (a, res, *_quadratic(rows, d, a, res))
     carry = jax.lax.fori_loop(0, m.solver_iterations, lambda _, c: _newton_step(structure, rows, d, c), carry)
     a = carry[0]
-    jl, jc = rows.jar(a)
+    jf, jl, jc = rows.jar(a)
+    ff = -rows.friction_force(jf)[0]
     fl, fc = -rows.lim_D * jnp.minimum(jl, 0.0), -rows.dd * jnp.minimum(jc, 0.0)
-    return d.replace(qacc=a, efc_force=jnp.concatenate([fl, fc]), qfrc_constraint=rows.jt(fl, fc))
+    force = jnp.concatenate([ff, fl, fc])
+    return d.replace(qacc=a, efc_force=force, qfrc_constraint=rows.jt(ff, fl, fc))

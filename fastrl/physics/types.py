@@ -61,6 +61,8 @@ class Model:
       jnt_type, jnt_qposadr, jnt_dofadr        (njnt,)  JointType; addresses in qpos, qvel
       jnt_bodyid, jnt_limited                  (njnt,)
       dof_bodyid, dof_jntid, dof_parentid      (nv,)    dof_parentid is -1 at a tree root
+      friction_dofs                            (nfric,) dofs with a friction-loss row
+                                               (frictionloss > 0 when compiled)
       geom_bodyid, geom_type                   (ngeom,)
       geom_contype, geom_conaffinity           (ngeom,)
       site_bodyid                              (nsite,)
@@ -86,6 +88,7 @@ class Model:
       jnt_actfrcrange (njnt,2)
       qpos0 (nq,), qpos_spring (nq,)
       dof_armature (nv,), dof_damping (nv,)
+      dof_frictionloss (nv,), dof_solref (nv,2), dof_solimp (nv,5)   friction loss and its softness
       geom_pos (ngeom,3), geom_quat (ngeom,4), geom_size (ngeom,3), geom_friction (ngeom,3)
       site_pos (nsite,3), site_quat (nsite,4)
       actuator_gear (nu,6), actuator_ctrlrange (nu,2), actuator_forcerange (nu,2)
@@ -119,6 +122,7 @@ class Model:
     dof_bodyid: np.ndarray
     dof_jntid: np.ndarray
     dof_parentid: np.ndarray
+    friction_dofs: np.ndarray
     geom_bodyid: np.ndarray
     geom_type: np.ndarray
     geom_contype: np.ndarray
@@ -161,6 +165,9 @@ class Model:
     qpos_spring: jax.Array
     dof_armature: jax.Array
     dof_damping: jax.Array
+    dof_frictionloss: jax.Array
+    dof_solref: jax.Array
+    dof_solimp: jax.Array
     geom_pos: jax.Array
     geom_quat: jax.Array
     geom_size: jax.Array
