@@ -266,6 +266,8 @@ def gymnasium_kwargs(env: Env) -> dict:
         kwargs["reset_noise_scale"] = env.reset_noise_scale
     if spec.health:
         kwargs["terminate_when_unhealthy"] = env.terminate_when_unhealthy
+    elif not env.terminate_when_unhealthy:
+        raise ValueError(f"{env.name}: Gymnasium's {spec.env_id} always terminates; use simulator='mujoco'")
     for option in spec.options:
         kwargs[option] = getattr(env, option)
     return kwargs
