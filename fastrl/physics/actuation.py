@@ -43,6 +43,10 @@ def actuation(m: Model, d: Data) -> Data:
         force = jnp.where(m.actuator_forcelimited.astype(bool), jnp.clip(force, lo, hi), force)
     pattern = jnp.asarray(tree.actuator_moment_pattern(m), ctrl.dtype)
     qfrc = pattern @ (gear * force)
+    if m.gravcomp_bodies.size and m.jnt_actgravcomp.any():
+        # actuatorgravcomp: the joint's gravity compensation counts as actuator force (MuJoCo
+        # adds it before the joint-level actfrcrange clamp; ``passive`` left it out)
+        qfrc = qfrc + jnp.where(m.jnt_actgravcomp[m.dof_jntid].astype(bool), d.qfrc_gravcomp, 0.0)
     if m.jnt_actfrclimited.any():
         lim = m.jnt_actfrclimited.astype(bool)
         dofs = m.jnt_dofadr[lim]

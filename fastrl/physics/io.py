@@ -64,8 +64,6 @@ def _check_supported(m: mujoco.MjModel) -> None:
     if fluid_enabled(m) and ellipsoid.any():
         where = _first(m, ellipsoid, obj.mjOBJ_GEOM)
         problems.append(f"the ellipsoid fluid model ({where} has fluidshape='ellipsoid')")
-    if _nonzero(m, "body_gravcomp"):
-        problems.append(f"gravity compensation ({_first(m, m.body_gravcomp != 0, obj.mjOBJ_BODY)})")
     for field in ("dof_dampingpoly", "jnt_stiffnesspoly", "jnt_springyield"):
         if _nonzero(m, field):
             problems.append(f"nonlinear joint passive forces ({field})")
@@ -315,6 +313,7 @@ def model_from_mujoco(
         geom_bodyid=i32(m.geom_bodyid), geom_type=i32(m.geom_type),
         geom_contype=i32(m.geom_contype), geom_conaffinity=i32(m.geom_conaffinity),
         site_bodyid=i32(m.site_bodyid), body_fluid=i32(_fluid_bodies(m)),
+        gravcomp_bodies=i32(np.flatnonzero(m.body_gravcomp != 0)), jnt_actgravcomp=i32(m.jnt_actgravcomp),
         actuator_trnid=i32(m.actuator_trnid[:, 0]),
         actuator_gaintype=i32(m.actuator_gaintype), actuator_biastype=i32(m.actuator_biastype),
         actuator_ctrllimited=i32(m.actuator_ctrllimited),
@@ -329,6 +328,7 @@ def model_from_mujoco(
         timestep=f(m.opt.timestep), gravity=f(gravity),
         body_pos=f(m.body_pos), body_quat=f(m.body_quat), body_ipos=f(m.body_ipos),
         body_iquat=f(m.body_iquat), body_mass=f(m.body_mass), body_inertia=f(m.body_inertia),
+        body_gravcomp=f(m.body_gravcomp),
         jnt_pos=f(m.jnt_pos), jnt_axis=f(m.jnt_axis), jnt_stiffness=f(m.jnt_stiffness),
         jnt_range=f(m.jnt_range), jnt_actfrcrange=f(m.jnt_actfrcrange),
         qpos0=f(m.qpos0), qpos_spring=f(m.qpos_spring),
@@ -397,7 +397,7 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
         xanchor=z(nj, 3), xaxis=z(nj, 3), geom_xpos=z(ng, 3), geom_xmat=z(ng, 3, 3),
         site_xpos=z(ns, 3), site_xmat=z(ns, 3, 3), subtree_com=z(nb, 3), cinert=z(nb, 10),
         cdof=z(nv, 6), cvel=z(nb, 6), cdof_dot=z(nv, 6), qM=z(nv, nv), qfrc_bias=z(nv),
-        qfrc_spring=z(nv), qfrc_damper=z(nv), qfrc_passive=z(nv), actuator_length=z(nu),
+        qfrc_spring=z(nv), qfrc_damper=z(nv), qfrc_gravcomp=z(nv), qfrc_passive=z(nv), actuator_length=z(nu),
         actuator_velocity=z(nu), actuator_force=z(nu), qfrc_actuator=z(nv), qfrc_smooth=z(nv),
         qacc=z(nv), qacc_smooth=z(nv), contact_dist=z(ncon), contact_pos=z(ncon, 3),
         contact_frame=z(ncon, 3, 3), ncon=jnp.zeros((), jnp.int32),

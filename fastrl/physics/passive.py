@@ -1,4 +1,5 @@
-"""Passive forces: joint springs and dampers, and the inertia-box fluid model (mj_passive)."""
+"""Passive forces: joint springs and dampers, the inertia-box fluid model and gravity
+compensation (mj_passive)."""
 
 from __future__ import annotations
 
@@ -32,7 +33,31 @@ def passive(m: Model, d: Data) -> Data:
     total = spring + damper
     if m.body_fluid.any():
         total = total + fluid(m, d)
-    return d.replace(qfrc_spring=spring, qfrc_damper=damper, qfrc_passive=total)
+    comp = jnp.zeros_like(d.qvel)
+    if m.gravcomp_bodies.size:
+        comp = gravcomp(m, d)
+        # a joint with actuatorgravcomp takes its share through its actuators instead
+        total = total + jnp.where(m.jnt_actgravcomp[m.dof_jntid].astype(bool), 0.0, comp)
+    return d.replace(qfrc_spring=spring, qfrc_damper=damper, qfrc_gravcomp=comp, qfrc_passive=total)
+
+
+def gravcomp(m: Model, d: Data) -> jax.Array:
+    """(nv,) MuJoCo's gravity compensation (mj_gravcomp): on each body of ``gravcomp_bodies``
+    the force ``-gravcomp * mass * gravity`` at its centre of mass, in joint space. Zero when
+    gravity is (disabled and so) zero. Expects ``com_pos`` to have run."""
+    bodies = m.gravcomp_bodies
+    force = -(m.body_gravcomp[bodies] * m.body_mass[bodies])[:, None] * m.gravity
+    return _wrench_at_com(m, d, bodies, jnp.zeros_like(force), force)
+
+
+def _wrench_at_com(m: Model, d: Data, bodies: np.ndarray, torque: jax.Array, force: jax.Array) -> jax.Array:
+    """(nv,) generalized forces of world-frame wrenches ``(torque, force)`` (n, 3) applied at the
+    centres of mass of ``bodies`` (mj_applyFT at xipos). As a spatial force about the tree's
+    com, the frame of cdof: ``qfrc_i = cdof_i . (sum of the wrenches on the bodies dof i moves)``."""
+    offset = d.xipos[bodies] - d.subtree_com[m.body_rootid[bodies]]
+    wrench = jnp.concatenate([torque + math.cross(offset, force), force], -1)
+    moved = jnp.asarray(tree.body_dof_ancestors(m)[bodies].T, wrench.dtype)  # (nv, n)
+    return jnp.sum(d.cdof * (moved @ wrench), -1)
 
 
 def _box_sizes(mass: jax.Array, inertia: jax.Array) -> jax.Array:
@@ -85,9 +110,4 @@ def fluid(m: Model, d: Data) -> jax.Array:
     force = -3.0 * jnp.pi * diam * mu * lin - 0.5 * rho * area * jnp.abs(lin) * lin
     rot = d.ximat[bodies]
     torque, force = jnp.sum(rot * torque[:, None, :], -1), jnp.sum(rot * force[:, None, :], -1)
-    # As a spatial force about the tree's com, the frame of cdof: qfrc_i = cdof_i . sum of the
-    # wrenches on the bodies dof i moves.
-    offset = d.xipos[bodies] - d.subtree_com[m.body_rootid[bodies]]
-    wrench = jnp.concatenate([torque + math.cross(offset, force), force], -1)
-    moved = jnp.asarray(tree.body_dof_ancestors(m)[bodies].T, wrench.dtype)  # (nv, n)
-    return jnp.sum(d.cdof * (moved @ wrench), -1)
+    return _wrench_at_com(m, d, bodies, torque, force)

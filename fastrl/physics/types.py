@@ -67,6 +67,9 @@ class Model:
       geom_contype, geom_conaffinity           (ngeom,)
       site_bodyid                              (nsite,)
       body_fluid                               (nbody,) 1 where the inertia-box fluid model acts
+      gravcomp_bodies                          (ngravcomp,) bodies with gravity compensation
+      jnt_actgravcomp                          (njnt,)  1: the joint's gravcomp goes through its
+                                               actuators (counted against actfrcrange)
                                                (body mass > 0, density or viscosity > 0)
       actuator_trnid                           (nu,)    the joint each actuator drives
       actuator_gaintype, actuator_biastype     (nu,)    0 fixed/none, 1 affine
@@ -83,7 +86,7 @@ class Model:
     Traced parameters (jax.Array):
       timestep ()   gravity (3,)
       body_pos (nbody,3), body_quat (nbody,4), body_ipos (nbody,3), body_iquat (nbody,4)
-      body_mass (nbody,), body_inertia (nbody,3)
+      body_mass (nbody,), body_inertia (nbody,3), body_gravcomp (nbody,)
       jnt_pos (njnt,3), jnt_axis (njnt,3), jnt_stiffness (njnt,), jnt_range (njnt,2)
       jnt_actfrcrange (njnt,2)
       qpos0 (nq,), qpos_spring (nq,)
@@ -129,6 +132,8 @@ class Model:
     geom_conaffinity: np.ndarray
     site_bodyid: np.ndarray
     body_fluid: np.ndarray
+    gravcomp_bodies: np.ndarray
+    jnt_actgravcomp: np.ndarray
     actuator_trnid: np.ndarray
     actuator_gaintype: np.ndarray
     actuator_biastype: np.ndarray
@@ -156,6 +161,7 @@ class Model:
     body_iquat: jax.Array
     body_mass: jax.Array
     body_inertia: jax.Array
+    body_gravcomp: jax.Array
     jnt_pos: jax.Array
     jnt_axis: jax.Array
     jnt_stiffness: jax.Array
@@ -223,7 +229,7 @@ class Data:
     Com-based:    subtree_com (nbody,3)  cinert (nbody,10)  cdof (nv,6)  cvel (nbody,6)
                   cdof_dot (nv,6)
     Dynamics:     qM (nv,nv)  qfrc_bias (nv,)  qfrc_spring (nv,)  qfrc_damper (nv,)
-                  qfrc_passive (nv,)  actuator_length (nu,)  actuator_velocity (nu,)
+                  qfrc_gravcomp (nv,)  qfrc_passive (nv,)  actuator_length (nu,)  actuator_velocity (nu,)
                   actuator_force (nu,)  qfrc_actuator (nv,)  qfrc_smooth (nv,)  qacc (nv,)
                   qacc_smooth (nv,)  acceleration without constraints
     Contacts:     contact_dist (ncand,)  contact_pos (ncand,3)  contact_frame (ncand,3,3) (rows:
@@ -263,6 +269,7 @@ class Data:
     qfrc_bias: jax.Array
     qfrc_spring: jax.Array
     qfrc_damper: jax.Array
+    qfrc_gravcomp: jax.Array
     qfrc_passive: jax.Array
     actuator_length: jax.Array
     actuator_velocity: jax.Array
