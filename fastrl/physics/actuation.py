@@ -6,6 +6,7 @@ import jax.numpy as jnp
 import mujoco
 
 from fastrl.physics import tree
+from fastrl.physics.passive import gravcomp
 from fastrl.physics.types import Data, Model
 
 _DSBL = mujoco.mjtDisableBit
@@ -46,7 +47,7 @@ def actuation(m: Model, d: Data) -> Data:
     if m.gravcomp_bodies.size and m.jnt_actgravcomp.any():
         # actuatorgravcomp: the joint's gravity compensation counts as actuator force (MuJoCo
         # adds it before the joint-level actfrcrange clamp; ``passive`` left it out)
-        qfrc = qfrc + jnp.where(m.jnt_actgravcomp[m.dof_jntid].astype(bool), d.qfrc_gravcomp, 0.0)
+        qfrc = qfrc + jnp.where(m.jnt_actgravcomp[m.dof_jntid].astype(bool), gravcomp(m, d), 0.0)
     if m.jnt_actfrclimited.any():
         lim = m.jnt_actfrclimited.astype(bool)
         dofs = m.jnt_dofadr[lim]

@@ -39,6 +39,8 @@ def summary_lines(m: Model) -> list[str]:
         f"rows for the {constraint.contact_slots(m)} deepest (nconmax {m.nconmax})",
         f"limited joints  {nlim}",
         f"friction loss   {constraint.friction_dofs(m).size} dofs (one row each)",
+        f"mocap bodies    {m.mocap_bodies.size} (posed by Data.mocap_pos/mocap_quat)",
+        f"gravity comp.   {m.gravcomp_bodies.size} bodies",
         f"constraint rows {nefc} ({nlim} limit + {nefc - nlim} contact, pyramidal cone)",
         f"solver          {'none traced' if nefc == 0 else f'Newton, {m.solver_iterations} iterations'}",
         f"integrator      {m.summary().split('integrator ')[1]}",

@@ -54,7 +54,6 @@ def _check_supported(m: mujoco.MjModel) -> None:
         (m.neq, "equality constraints"),
         (m.nflex, "flexes"),
         (m.nplugin, "plugins"),
-        (m.nmocap, "mocap bodies"),
     ]:
         if count:
             problems.append(f"{what} ({count} in the model)")
@@ -314,6 +313,7 @@ def model_from_mujoco(
         geom_contype=i32(m.geom_contype), geom_conaffinity=i32(m.geom_conaffinity),
         site_bodyid=i32(m.site_bodyid), body_fluid=i32(_fluid_bodies(m)),
         gravcomp_bodies=i32(np.flatnonzero(m.body_gravcomp != 0)), jnt_actgravcomp=i32(m.jnt_actgravcomp),
+        mocap_bodies=i32(np.argsort(np.where(m.body_mocapid >= 0, m.body_mocapid, m.nbody))[: m.nmocap]),
         actuator_trnid=i32(m.actuator_trnid[:, 0]),
         actuator_gaintype=i32(m.actuator_gaintype), actuator_biastype=i32(m.actuator_biastype),
         actuator_ctrllimited=i32(m.actuator_ctrllimited),
@@ -393,11 +393,13 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
     nslot = contact_slots(model)
     return Data(
         qpos=qpos, qvel=qvel, ctrl=ctrl, time=z(), qfrc_applied=z(nv), qacc_warmstart=z(nv),
+        mocap_pos=model.body_pos[model.mocap_bodies],
+        mocap_quat=model.body_quat[model.mocap_bodies],
         xpos=z(nb, 3), xquat=z(nb, 4).at[:, 0].set(1.0), xmat=eye, xipos=z(nb, 3), ximat=eye,
         xanchor=z(nj, 3), xaxis=z(nj, 3), geom_xpos=z(ng, 3), geom_xmat=z(ng, 3, 3),
         site_xpos=z(ns, 3), site_xmat=z(ns, 3, 3), subtree_com=z(nb, 3), cinert=z(nb, 10),
         cdof=z(nv, 6), cvel=z(nb, 6), cdof_dot=z(nv, 6), qM=z(nv, nv), qfrc_bias=z(nv),
-        qfrc_spring=z(nv), qfrc_damper=z(nv), qfrc_gravcomp=z(nv), qfrc_passive=z(nv), actuator_length=z(nu),
+        qfrc_spring=z(nv), qfrc_damper=z(nv), qfrc_passive=z(nv), actuator_length=z(nu),
         actuator_velocity=z(nu), actuator_force=z(nu), qfrc_actuator=z(nv), qfrc_smooth=z(nv),
         qacc=z(nv), qacc_smooth=z(nv), contact_dist=z(ncon), contact_pos=z(ncon, 3),
         contact_frame=z(ncon, 3, 3), ncon=jnp.zeros((), jnp.int32),

@@ -33,18 +33,17 @@ def passive(m: Model, d: Data) -> Data:
     total = spring + damper
     if m.body_fluid.any():
         total = total + fluid(m, d)
-    comp = jnp.zeros_like(d.qvel)
     if m.gravcomp_bodies.size:
-        comp = gravcomp(m, d)
         # a joint with actuatorgravcomp takes its share through its actuators instead
-        total = total + jnp.where(m.jnt_actgravcomp[m.dof_jntid].astype(bool), 0.0, comp)
-    return d.replace(qfrc_spring=spring, qfrc_damper=damper, qfrc_gravcomp=comp, qfrc_passive=total)
+        total = total + jnp.where(m.jnt_actgravcomp[m.dof_jntid].astype(bool), 0.0, gravcomp(m, d))
+    return d.replace(qfrc_spring=spring, qfrc_damper=damper, qfrc_passive=total)
 
 
 def gravcomp(m: Model, d: Data) -> jax.Array:
-    """(nv,) MuJoCo's gravity compensation (mj_gravcomp): on each body of ``gravcomp_bodies``
-    the force ``-gravcomp * mass * gravity`` at its centre of mass, in joint space. Zero when
-    gravity is (disabled and so) zero. Expects ``com_pos`` to have run."""
+    """(nv,) MuJoCo's gravity compensation (mj_gravcomp, ``mjData.qfrc_gravcomp``): on each body
+    of ``gravcomp_bodies`` the force ``-gravcomp * mass * gravity`` at its centre of mass, in
+    joint space. Zero when gravity is (disabled and so) zero. Expects ``com_pos`` to have run.
+    Not stored in ``Data``: ``passive`` and ``actuation`` each take their share of it."""
     bodies = m.gravcomp_bodies
     force = -(m.body_gravcomp[bodies] * m.body_mass[bodies])[:, None] * m.gravity
     return _wrench_at_com(m, d, bodies, jnp.zeros_like(force), force)

@@ -89,6 +89,9 @@ def kinematics(m: Model, d: Data) -> Data:
     dtype = d.qpos.dtype
     jtrans, jquat = _joint_local(m, d.qpos)
     lt, lq, pre_t, pre_q = _body_local(m, jtrans, jquat)
+    if m.mocap_bodies.size:  # children of the world, placed by Data.mocap_pos/mocap_quat
+        lt = lt.at[m.mocap_bodies].set(d.mocap_pos)
+        lq = lq.at[m.mocap_bodies].set(math.quat_normalize(d.mocap_quat))
     # One pass per tree depth: rows of (pos, quat) are appended level by level.
     pos = jnp.zeros((1, 3), dtype)
     quat = jnp.array([[1.0, 0, 0, 0]], dtype)

@@ -68,6 +68,8 @@ class Model:
       site_bodyid                              (nsite,)
       body_fluid                               (nbody,) 1 where the inertia-box fluid model acts
       gravcomp_bodies                          (ngravcomp,) bodies with gravity compensation
+      mocap_bodies                             (nmocap,) the mocap bodies, in mocap id order (their
+                                               poses are Data.mocap_pos/mocap_quat)
       jnt_actgravcomp                          (njnt,)  1: the joint's gravcomp goes through its
                                                actuators (counted against actfrcrange)
                                                (body mass > 0, density or viscosity > 0)
@@ -133,6 +135,7 @@ class Model:
     site_bodyid: np.ndarray
     body_fluid: np.ndarray
     gravcomp_bodies: np.ndarray
+    mocap_bodies: np.ndarray
     jnt_actgravcomp: np.ndarray
     actuator_trnid: np.ndarray
     actuator_gaintype: np.ndarray
@@ -223,13 +226,15 @@ class Data:
 
     State:        qpos (nq,)  qvel (nv,)  ctrl (nu,)  time ()  qfrc_applied (nv,)
                   qacc_warmstart (nv,)  the last step's acceleration, the solver's starting point
+                  mocap_pos (nmocap,3)  mocap_quat (nmocap,4)  poses of the mocap bodies (set them
+                  between steps; a step holds them fixed)
     Kinematics:   xpos (nbody,3)  xquat (nbody,4)  xmat (nbody,3,3)  xipos (nbody,3)
                   ximat (nbody,3,3)  xanchor (njnt,3)  xaxis (njnt,3)
                   geom_xpos (ngeom,3)  geom_xmat (ngeom,3,3)  site_xpos (nsite,3)  site_xmat (nsite,3,3)
     Com-based:    subtree_com (nbody,3)  cinert (nbody,10)  cdof (nv,6)  cvel (nbody,6)
                   cdof_dot (nv,6)
     Dynamics:     qM (nv,nv)  qfrc_bias (nv,)  qfrc_spring (nv,)  qfrc_damper (nv,)
-                  qfrc_gravcomp (nv,)  qfrc_passive (nv,)  actuator_length (nu,)  actuator_velocity (nu,)
+                  qfrc_passive (nv,)  actuator_length (nu,)  actuator_velocity (nu,)
                   actuator_force (nu,)  qfrc_actuator (nv,)  qfrc_smooth (nv,)  qacc (nv,)
                   qacc_smooth (nv,)  acceleration without constraints
     Contacts:     contact_dist (ncand,)  contact_pos (ncand,3)  contact_frame (ncand,3,3) (rows:
@@ -239,7 +244,7 @@ class Data:
                   nconmax deepest, see constraint.py); only slots have constraint rows
     Constraints:  efc_J (nefc,nv)  efc_pos (nefc,)  efc_aref (nefc,)  efc_D (nefc,) (= 1/R; 0 on
                   rows beyond their margin)  efc_force (nefc,)  qfrc_constraint (nv,); rows:
-                  one per limited joint, then the contact slots' rows
+                  one per friction-loss dof, one per limited joint, then the contact slots' rows
     Health:       diverged ()  True once the state has been non-finite or beyond bounds
     """
 
@@ -249,6 +254,8 @@ class Data:
     time: jax.Array
     qfrc_applied: jax.Array
     qacc_warmstart: jax.Array
+    mocap_pos: jax.Array
+    mocap_quat: jax.Array
     xpos: jax.Array
     xquat: jax.Array
     xmat: jax.Array
@@ -269,7 +276,6 @@ class Data:
     qfrc_bias: jax.Array
     qfrc_spring: jax.Array
     qfrc_damper: jax.Array
-    qfrc_gravcomp: jax.Array
     qfrc_passive: jax.Array
     actuator_length: jax.Array
     actuator_velocity: jax.Array

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from fastrl import physics
+from fastrl.physics.passive import gravcomp
 from tests.conftest import asset
 
 
@@ -20,7 +21,7 @@ def test_gravity_compensation_matches_mujoco_and_counts_against_actuator_limits(
     m = physics.model_from_mujoco(mj)
     d = jax.jit(physics.forward)(m, physics.make_data(m))
     mujoco.mj_forward(mj, md)
-    np.testing.assert_allclose(d.qfrc_gravcomp, md.qfrc_gravcomp, atol=1e-12)
+    np.testing.assert_allclose(gravcomp(m, d), md.qfrc_gravcomp, atol=1e-12)
     np.testing.assert_allclose(d.qfrc_actuator, md.qfrc_actuator, atol=1e-12)
     wrist = mj.jnt_dofadr[mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, "wrist")]
     assert abs(md.qfrc_gravcomp[wrist]) > 0.05  # clamped to 0.05 in qfrc_actuator, not passive

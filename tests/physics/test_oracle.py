@@ -14,7 +14,7 @@ from tests.conftest import MODELS, asset, random_state
 STAGE_FIELDS = [
     "xpos", "xquat", "xmat", "xipos", "ximat", "xanchor", "xaxis", "geom_xpos", "geom_xmat",
     "site_xpos", "site_xmat", "subtree_com", "cinert", "cdof", "cvel", "cdof_dot", "qfrc_bias",
-    "qfrc_spring", "qfrc_damper", "qfrc_gravcomp", "qfrc_passive", "actuator_length",
+    "qfrc_spring", "qfrc_damper", "qfrc_passive", "actuator_length",
     "actuator_velocity",
     "actuator_force", "qfrc_actuator", "qacc",
 ]  # fmt: skip
