@@ -57,7 +57,10 @@ def _check_supported(m: mujoco.MjModel) -> None:
     ]:
         if count:
             problems.append(f"{what} ({count} in the model)")
-    if contacts_enabled(m) and np.any((m.geom_condim != 1) & (m.geom_condim != 3)):
+    if contacts_enabled(m) and (_nonzero(m, "geom_adhesion") or _nonzero(m, "pair_adhesion")):
+        problems.append("contact adhesion (geom or pair adhesion)")
+    condims = np.concatenate([m.geom_condim, m.pair_dim])
+    if contacts_enabled(m) and np.any((condims != 1) & (condims != 3)):
         problems.append("contact condim other than 1 or 3 (torsional/rolling friction)")
     ellipsoid = (m.geom_fluid[:, 0] > 0) & (m.body_mass[m.geom_bodyid] >= mujoco.mjMINVAL)
     if fluid_enabled(m) and ellipsoid.any():
@@ -104,8 +107,6 @@ def _check_supported(m: mujoco.MjModel) -> None:
                 break
     if m.opt.cone != mujoco.mjtCone.mjCONE_PYRAMIDAL and contacts_enabled(m):
         problems.append("the elliptic friction cone (use cone='pyramidal')")
-    if m.npair:
-        problems.append("explicit <contact><pair> elements")
     if problems:
         raise UnsupportedFeatureError("fastrl cannot simulate this model yet: " + "; ".join(problems))
 
@@ -164,8 +165,11 @@ def candidate_geom_pairs(m: mujoco.MjModel) -> list[tuple[int, int]]:
     """Geom pairs that MuJoCo's broadphase filter could let touch (contype/conaffinity, exclusions).
 
     Excludes pairs in one welded body, pairs of two world-welded geoms, parent-child pairs (unless
-    filterparent is disabled) and ``<exclude>``d body pairs; adds explicit ``<pair>`` elements.
+    filterparent is disabled) and ``<exclude>``d body pairs; adds explicit ``<pair>`` elements,
+    which bypass those filters and replace the filtered pair of the same two geoms (MuJoCo keeps
+    the other geom pairs of the same two bodies).
     """
+    explicit = _explicit_pairs(m)
     weld = m.body_weldid
     parent = m.body_parentid
     filterparent = not m.opt.disableflags & _DSBL.mjDSBL_FILTERPARENT
@@ -186,15 +190,27 @@ def candidate_geom_pairs(m: mujoco.MjModel) -> list[tuple[int, int]]:
                     continue
             if (min(b1, b2), max(b1, b2)) in excluded or (b1 << 16 | b2) in excluded:
                 continue
+            if frozenset((g1, g2)) in explicit:
+                continue
             pairs.append((g1, g2))
+    pairs.extend(tuple(sorted(p)) for p in explicit)
     # MuJoCo's collision table is indexed with the lower geom type first.
     return [(a, b) if m.geom_type[a] <= m.geom_type[b] else (b, a) for a, b in pairs]
+
+
+def _explicit_pairs(m: mujoco.MjModel) -> dict[frozenset, int]:
+    """``{frozenset((geom1, geom2)): pair id}`` of the model's explicit ``<contact><pair>``s."""
+    return {
+        frozenset((int(a), int(b))): i
+        for i, (a, b) in enumerate(zip(m.pair_geom1, m.pair_geom2, strict=True))
+    }
 
 
 def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[str, np.ndarray]:
     """Contact parameters of each pair, mixed from its two geoms as MuJoCo mixes them.
 
-    condim and friction take the maximum (friction per component, expanded to MuJoCo's
+    An explicit ``<pair>`` takes its own condim, friction, solref, solimp, margin and gap. Other
+    pairs: condim and friction take the maximum (friction per component, expanded to MuJoCo's
     5-vector: tangential, tangential, torsional, rolling, rolling, each at least 1e-5); margins
     and gaps add up (MuJoCo >= 4.0); solref and solimp are a weighted mean with weights from
     ``solmix``; a geom with higher ``priority`` supplies condim, friction, solref and solimp.
@@ -204,7 +220,15 @@ def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[st
         "condim": np.zeros(n, np.int32), "friction": np.zeros((n, 5)), "solref": np.zeros((n, 2)),
         "solimp": np.zeros((n, 5)), "margin": np.zeros(n), "gap": np.zeros(n),
     }  # fmt: skip
+    explicit = _explicit_pairs(m)
     for k, (g1, g2) in enumerate(pairs):
+        pid = explicit.get(frozenset((int(g1), int(g2))))
+        if pid is not None:  # an explicit <pair> states its own parameters
+            out["condim"][k] = m.pair_dim[pid]
+            out["friction"][k] = np.maximum(m.pair_friction[pid], mujoco.mjMINMU)
+            out["solref"][k], out["solimp"][k] = m.pair_solref[pid], m.pair_solimp[pid]
+            out["margin"][k], out["gap"][k] = m.pair_margin[pid], m.pair_gap[pid]
+            continue
         p1, p2 = m.geom_priority[g1], m.geom_priority[g2]
         if p1 != p2:
             win = g1 if p1 > p2 else g2
