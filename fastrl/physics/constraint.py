@@ -32,7 +32,9 @@ from fastrl.physics.types import Data, JointType, Model
 
 _DSBL = mujoco.mjtDisableBit
 MIN_IMP, MAX_IMP = 1e-4, 0.9999  # MuJoCo's mjMINIMP, mjMAXIMP
-CONTACT_CONDIMS = (1, 3)  # frictionless, and a pyramid with two tangents; rows in this order
+# frictionless; a pyramid over two tangents (3), plus torsion (4), plus rolling (6); rows in
+# this order
+CONTACT_CONDIMS = (1, 3, 4, 6)
 MIN_NCONMAX = 8
 
 
@@ -121,6 +123,12 @@ def point_jacobian(m: Model, d: Data, bodies: np.ndarray, points: jax.Array) -> 
     """
     mask = jnp.asarray(tree.body_dof_ancestors(m)[bodies], points.dtype)  # (n, nv)
     return _point_jacobian(d, mask, d.subtree_com[m.body_rootid[bodies]], points)
+
+
+def _rotation_jacobian(d: Data, mask: jax.Array) -> jax.Array:
+    """(n, 3, nv) rotational Jacobians of bodies given their dof masks (n, nv): a body turns
+    with the angular part of every dof that moves it."""
+    return jnp.swapaxes(d.cdof[None, :, :3] * mask[:, :, None], 1, 2)
 
 
 def _point_jacobian(d: Data, mask: jax.Array, com: jax.Array, points: jax.Array) -> jax.Array:
@@ -246,19 +254,32 @@ def make_constraint(m: Model, d: Data) -> Data:
             jac_p = slot_jacobian(b2_all)
             if moving1:
                 jac_p = jac_p - slot_jacobian(b1_all)
-            jac_c = matmul(d.contact_frame[idx], jac_p)  # rows: normal, tangent1, tangent2
+            frame = d.contact_frame[idx]
+            jac_c = matmul(frame, jac_p)  # rows: normal, tangent1, tangent2
             common = (d.contact_dist[idx], m.pair_margin[pair], m.pair_solref[pair], m.pair_solimp[pair])
             tran = tran_all[idx]
             if dim == 1:
                 add(jac_c[:, 0], *common, tran)
                 continue
-            mu = m.pair_friction[pair, :2]
+            # The friction directions: the two tangents (translation), then for condim 4 the
+            # rotation about the normal (torsion), for 6 also about the tangents (rolling).
+            dirs = [jac_c[:, 1], jac_c[:, 2]]
+            if dim > 3:
+                mask_b = lambda bodies, idx=idx: jnp.asarray(ancestors[bodies], dtype)[idx]  # noqa: E731
+                jac_r = _rotation_jacobian(d, mask_b(b2_all))
+                if moving1:
+                    jac_r = jac_r - _rotation_jacobian(d, mask_b(b1_all))
+                jac_rc = matmul(frame, jac_r)  # rows: about the normal, tangent1, tangent2
+                dirs += [jac_rc[:, 0]] if dim == 4 else [jac_rc[:, 0], jac_rc[:, 1], jac_rc[:, 2]]
+            mu = m.pair_friction[pair, : dim - 1]
             jn = jac_c[:, 0]
-            t1, t2 = mu[:, :1] * jac_c[:, 1], mu[:, 1:] * jac_c[:, 2]
-            edges = jnp.stack([jn + t1, jn - t1, jn + t2, jn - t2], 1)  # MuJoCo's pyramid edges
+            edges = []  # MuJoCo's pyramid edges: J_n +- mu_i J_i for each friction direction i
+            for i, ji in enumerate(dirs):
+                edges += [jn + mu[:, i : i + 1] * ji, jn - mu[:, i : i + 1] * ji]
+            edges = jnp.stack(edges, 1)
             mu0 = mu[:, 0]
             diag = 2 * mu0**2 * (1 + mu0**2) * tran / m.impratio
-            add(edges.reshape(-1, m.nv), *common, diag, repeat=4)
+            add(edges.reshape(-1, m.nv), *common, diag, repeat=2 * (dim - 1))
     if not jacs:
         return d
     out = d.replace(

@@ -60,8 +60,8 @@ def _check_supported(m: mujoco.MjModel) -> None:
     if contacts_enabled(m) and (_nonzero(m, "geom_adhesion") or _nonzero(m, "pair_adhesion")):
         problems.append("contact adhesion (geom or pair adhesion)")
     condims = np.concatenate([m.geom_condim, m.pair_dim])
-    if contacts_enabled(m) and np.any((condims != 1) & (condims != 3)):
-        problems.append("contact condim other than 1 or 3 (torsional/rolling friction)")
+    if contacts_enabled(m) and not np.isin(condims, (1, 3, 4, 6)).all():
+        problems.append("contact condim other than 1, 3, 4 or 6")
     ellipsoid = (m.geom_fluid[:, 0] > 0) & (m.body_mass[m.geom_bodyid] >= mujoco.mjMINVAL)
     if fluid_enabled(m) and ellipsoid.any():
         where = _first(m, ellipsoid, obj.mjOBJ_GEOM)

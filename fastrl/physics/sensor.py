@@ -33,7 +33,7 @@ def contact_force(m: Model, d: Data) -> jax.Array:
       d: data after ``forward`` (or ``step``).
     Returns:
       (ncon, 6) ``(normal, tangent1, tangent2, torsion, roll1, roll2)`` per candidate contact;
-      the last three are zero, as fastrl's contacts have condim 1 or 3.
+      the components beyond a contact's condim are zero.
     """
     layout = contact_layout(m)
     adr = constraint.contact_efc_address(m)
@@ -82,12 +82,13 @@ def cfrc_ext(m: Model, d: Data) -> jax.Array:
     layout = contact_layout(m)
     if not layout.size:
         return out
-    local = contact_force(m, d)[:, :3]
-    force = jnp.sum(d.contact_frame * local[:, :, None], axis=-2)  # frame^T local: world axes
+    local = contact_force(m, d)
+    force = jnp.sum(d.contact_frame * local[:, :3, None], axis=-2)  # frame^T local: world axes
+    torque = jnp.sum(d.contact_frame * local[:, 3:, None], axis=-2)  # torsion and rolling (condim 4/6)
     for sign, geoms in ((-1.0, m.pair_geom1[layout]), (1.0, m.pair_geom2[layout])):
         bodies = m.geom_bodyid[geoms]
         if not bodies.any():  # this side is always the world (the floor): nothing to apply
             continue
         arm = d.contact_pos - d.subtree_com[m.body_rootid[bodies]]
-        out = out.at[bodies].add(sign * jnp.concatenate([cross(arm, force), force], -1))
+        out = out.at[bodies].add(sign * jnp.concatenate([cross(arm, force) + torque, force], -1))
     return out.at[0].set(0.0)
