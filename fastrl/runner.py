@@ -30,6 +30,7 @@ import numpy as np
 from fastrl import agents, compile_cache, scale
 from fastrl.checkpoint import Checkpointer, CheckpointError
 from fastrl.config import RunConfig
+from fastrl.physics import Integrator
 
 CHECKPOINT_DIR = "checkpoints"
 # Orbax logs every save step at INFO, JAX its backend probing: keep the run's output readable.
@@ -292,6 +293,11 @@ def _train(cfg, run_dir: Path, resume: bool, on_chunk, resume_step, record) -> d
         f"{steps_per_update:,d} env steps{batch_note}; chunk compiled in {compile_s:.1f}s ({cache_note}) on "
         f"{scale.describe(shardings, mesh)}; run dir {run_dir}"
     )
+    if cfg.env.integrator is not None or cfg.env.solver_iterations is not None:
+        integrator = Integrator(env.model.integrator).name.lower()
+        physics_note = f"{integrator}, {env.model.solver_iterations} solver iterations"
+        print(f"[fastrl] evaluation returns are at this run's physics ({physics_note}); the score in the "
+              f"reference simulator: python -m fastrl.evaluate {run_dir} --reference")  # fmt: skip
     if n_agents > 1:
         outs = []
         for spec in specs:

@@ -50,7 +50,11 @@ def _one(rows: dict[str, float], *words: str) -> float:
 def test_reference_flag_prints_both_scores(tmp_path, capsys, overrides):
     """A contact-free env at its asset's physics, and a contact env trained at other physics."""
     run_dir = _train(tmp_path, overrides)
-    capsys.readouterr()
+    trained = capsys.readouterr().out
+    # a run at non-asset physics says so when it starts, and how to get the reference score
+    assert ("evaluation returns are at this run's physics (euler" in trained) == (
+        "env.integrator=euler" in overrides
+    )
     assert evaluate.main([str(run_dir), "--reference", "--episodes", "4"]) == 0
     out = capsys.readouterr().out
     rows = _rows(out)
