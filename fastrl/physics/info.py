@@ -27,6 +27,8 @@ def summary_lines(m: Model) -> list[str]:
     )
     ncon, nefc = constraint.sizes(m)
     nlim = constraint.limited_joints(m).size
+    nfric = constraint.friction_dofs(m).size
+    condims = ", ".join(f"{n} x {dim}" for dim, _, n in constraint.contact_groups(m)) or "none"
     all_pairs = m.ngeom * (m.ngeom - 1) // 2
     fmt = lambda c: ", ".join(f"{n} {k}" for k, n in sorted(c.items())) or "none"  # noqa: E731
     return [
@@ -41,7 +43,8 @@ def summary_lines(m: Model) -> list[str]:
         f"friction loss   {constraint.friction_dofs(m).size} dofs (one row each)",
         f"mocap bodies    {m.mocap_bodies.size} (posed by Data.mocap_pos/mocap_quat)",
         f"gravity comp.   {m.gravcomp_bodies.size} bodies",
-        f"constraint rows {nefc} ({nlim} limit + {nefc - nlim} contact, pyramidal cone)",
+        f"constraint rows {nefc} ({nfric} friction loss + {nlim} limit + {nefc - nfric - nlim} contact, "
+        f"pyramidal cone; contact slots by condim: {condims})",
         f"solver          {'none traced' if nefc == 0 else f'Newton, {m.solver_iterations} iterations'}",
         f"integrator      {m.summary().split('integrator ')[1]}",
     ]

@@ -113,3 +113,11 @@ def test_friction_loss_gradients_are_finite(x64):
 
     g = jax.grad(final_height)(jax.numpy.full(mj.nu, 0.3))
     assert np.all(np.isfinite(np.asarray(g)))
+
+
+def test_scene_summary_lists_the_row_kinds():
+    from fastrl.physics import info
+
+    lines = "\n".join(info.summary_lines(physics.load_mjcf(asset("friction_loss"))))
+    assert "friction loss   9 dofs" in lines
+    assert "constraint rows 42 (9 friction loss + 1 limit + 32 contact" in lines
