@@ -135,3 +135,14 @@ def test_info_cli_prints_scene_summary(capsys):
     with pytest.raises(SystemExit) as err:
         info.main(["no/such.xml"])
     assert err.value.code == 2
+
+
+def test_solver_iterations_follow_a_scene_tuned_budget():
+    """``<option iterations>`` below fastrl's default is the scene's budget (MJX-tuned scenes);
+    MuJoCo's default cap of 100 and larger ones give fastrl's default; the custom numeric wins."""
+    body = '<worldbody><body><joint type="slide"/><geom size=".1"/></body></worldbody>'
+    for option, expected in [("", 8), ('iterations="1"', 1), ('iterations="3"', 3), ('iterations="50"', 8)]:
+        m = physics.load_mjcf(f"<mujoco><option {option}/>{body}</mujoco>")
+        assert m.solver_iterations == expected, option
+    custom = '<custom><numeric name="fastrl_solver_iterations" data="5"/></custom>'
+    assert physics.load_mjcf(f'<mujoco><option iterations="1"/>{custom}{body}</mujoco>').solver_iterations == 5
