@@ -38,6 +38,10 @@ from fastrl.physics.math import matvec
 from fastrl.physics.types import Data, Model
 
 LINESEARCH_ITERATIONS = 3
+# Up to this many contact rows H's contact part is an unrolled sum (fast for the standard envs'
+# 8-140 rows); beyond, a matrix product: an add chain thousands deep (a hand of 360 box-box
+# pairs has 5764 rows) compiled for minutes and crashed XLA with a segmentation fault.
+UNROLLED_HESSIAN_MAX_ROWS = 256
 # With friction-loss rows (see ``_bracketed_newton``).
 BRACKETED_LINESEARCH_ITERATIONS = 10
 
@@ -141,12 +145,15 @@ def _quadratic(rows: _Rows, d: Data, a: jax.Array, res: tuple[jax.Array, jax.Arr
     grad = matvec(d.qM, a - d.qacc_smooth) + rows.jt(neg_fr, quad_lim * jl, quad * jc)
     hess = d.qM
     if quad.size:
-        # An unrolled sum of outer products: one fused elementwise loop, 4-5x faster on XLA:CPU
-        # than the equivalent batched dot (tiny per-environment GEMMs). It must not be fused
-        # into the factorisation's many scalar reads (each would recompute its sum: 5x slower
-        # overall), which is why H is carried across the Newton loop (see ``solve``).
         scaled = rows.jac * quad[:, None]
-        hess = hess + sum(scaled[r][:, None] * rows.jac[r][None, :] for r in range(quad.shape[0]))
+        if quad.shape[0] <= UNROLLED_HESSIAN_MAX_ROWS:
+            # An unrolled sum of outer products: one fused elementwise loop, 4-5x faster on
+            # XLA:CPU than the equivalent batched dot (tiny per-environment GEMMs). It must not be
+            # fused into the factorisation's many scalar reads (each would recompute its sum: 5x
+            # slower overall), which is why H is carried across the Newton loop (see ``solve``).
+            hess = hess + sum(scaled[r][:, None] * rows.jac[r][None, :] for r in range(quad.shape[0]))
+        else:
+            hess = hess + scaled.T @ rows.jac
     if rows.lim_dofs.size or rows.fr_dofs.size:
         nv = d.qM.shape[-1]
         diag = jnp.zeros(nv, hess.dtype).at[rows.lim_dofs].add(quad_lim)
