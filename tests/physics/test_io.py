@@ -60,9 +60,9 @@ def test_public_api_shapes():
             BASE.format(
                 body='<geom type="plane" size="1 1 1"/>'
                 '<body><freejoint/><geom size="0.1" condim="6"/></body>',
-                extra="",
+                extra='<option cone="elliptic"/>',
             ),
-            ["condim"],
+            ["elliptic friction cone"],
         ),
         (
             BASE.format(
@@ -131,7 +131,7 @@ def test_info_cli_prints_scene_summary(capsys):
     out = capsys.readouterr().out
     assert "13 kept of 91 geom pairs (12 plane-capsule, 1 plane-sphere)" in out
     assert "25 candidates" in out and "rows for the 8 deepest (nconmax 8)" in out
-    assert "40 (8 limit + 32 contact" in out
+    assert "40 (0 friction loss + 8 limit + 32 contact" in out
     with pytest.raises(SystemExit) as err:
         info.main(["no/such.xml"])
     assert err.value.code == 2
