@@ -145,4 +145,5 @@ def test_solver_iterations_follow_a_scene_tuned_budget():
         m = physics.load_mjcf(f"<mujoco><option {option}/>{body}</mujoco>")
         assert m.solver_iterations == expected, option
     custom = '<custom><numeric name="fastrl_solver_iterations" data="5"/></custom>'
-    assert physics.load_mjcf(f'<mujoco><option iterations="1"/>{custom}{body}</mujoco>').solver_iterations == 5
+    m = physics.load_mjcf(f'<mujoco><option iterations="1"/>{custom}{body}</mujoco>')
+    assert m.solver_iterations == 5
