@@ -27,10 +27,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fastrl import agents, compile_cache, scale
+from fastrl import agents, compile_cache, reference, scale
 from fastrl.checkpoint import Checkpointer, CheckpointError
 from fastrl.config import RunConfig
-from fastrl.physics import Integrator
 
 CHECKPOINT_DIR = "checkpoints"
 # Orbax logs every save step at INFO, JAX its backend probing: keep the run's output readable.
@@ -294,8 +293,7 @@ def _train(cfg, run_dir: Path, resume: bool, on_chunk, resume_step, record) -> d
         f"{scale.describe(shardings, mesh)}; run dir {run_dir}"
     )
     if cfg.env.integrator is not None or cfg.env.solver_iterations is not None:
-        integrator = Integrator(env.model.integrator).name.lower()
-        physics_note = f"{integrator}, {env.model.solver_iterations} solver iterations"
+        physics_note = reference.physics_label(env)
         print(f"[fastrl] evaluation returns are at this run's physics ({physics_note}); the score in the "
               f"reference simulator: python -m fastrl.evaluate {run_dir} --reference")  # fmt: skip
     if n_agents > 1:
