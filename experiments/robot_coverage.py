@@ -24,7 +24,10 @@ MuJoCo Menagerie robots and MuJoCo Playground task scenes, meshes included. For 
               scenes set ``<option iterations="1">`` to ``"3"`` (tuned for MJX's speed), so
               MuJoCo C stops its Newton solve short of convergence, and the first comparison
               measures that truncation more than the physics; the third measures the physics.
-    random    ``--random-steps`` (1000) fastrl steps from the same state, controls drawn
+    float32   fastrl in float32, as it trains, beside MuJoCo C (float64) as written over the same
+              horizon: the largest distance between their roots (the first free joint's position;
+              scenes without a free joint have none), to be within 1 cm.
+    random    ``--random-steps`` (1000) fastrl float32 steps from the same state, controls drawn
               uniformly in each actuator's ``ctrlrange`` ([-1, 1] where unlimited) anew every
               step: the state must stay finite and ``diverged`` False.
     speed     (``--throughput`` only) control steps/s of fastrl at batch 1024 (float32, one
@@ -70,10 +73,11 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
 TRACK_TOL = 1e-4
 TOL = "1e-4"  # TRACK_TOL as the page writes it
+ROOT_TOL = 0.01  # m: float32 root vs MuJoCo C
 QUICK_SCENES = (
     # all small (nq 19), so each compiles in seconds even once the features it lacks land
     "playground/locomotion/go1/scene_mjx_feetonly_flat_terrain",  # loads
-    "menagerie/unitree_go1/scene",  # refused for several features at once
+    "menagerie/unitree_go1/scene",  # refused (a cylinder-cylinder collision)
     "playground/locomotion/go1/scene_mjx_feetonly_rough_terrain",  # refused: height field
 )
 _PREFIX = "fastrl cannot simulate this model yet: "
@@ -107,8 +111,9 @@ class SceneResult:
     solver_iterations: dict[str, int] = dataclasses.field(default_factory=dict)  # fastrl's, by variant
     qpos_err: dict[str, float] = dataclasses.field(default_factory=dict)  # by variant: max |qpos diff|
     first_off: dict[str, int | None] = dataclasses.field(default_factory=dict)  # first step > TRACK_TOL
+    root_err_f32: float | None = None  # float32 fastrl vs float64 MuJoCo: max root distance (m)
     random_steps: int = 0
-    random_finite: bool | None = None  # finite and not diverged after random_steps
+    random_finite: bool | None = None  # finite and not diverged after random_steps (float32)
     fastrl_sps: float | None = None  # --throughput: control steps/s at batch 1024
     mujoco_sps: float | None = None  # --throughput: mujoco.rollout, 2 threads
 
@@ -235,6 +240,33 @@ def _qpos_error(
     return float(err.max()), (int(off[0]) + 1 if off.size else None)
 
 
+def _root_body_qpos(mj: mujoco.MjModel) -> np.ndarray | None:
+    """qpos indices of the first free joint's position (the robot's root), or None without one."""
+    free = np.flatnonzero(mj.jnt_type == mujoco.mjtJoint.mjJNT_FREE)
+    return None if not free.size else mj.jnt_qposadr[free[0]] + np.arange(3)
+
+
+def _float32(row: SceneResult, mj: mujoco.MjModel, args) -> None:
+    """fastrl in float32 (as it trains): the root's largest distance from MuJoCo C's (float64) over
+    the tracking horizon, then ``args.random_steps`` steps of random controls that must stay finite."""
+    with jax.enable_x64(False):
+        model = physics.model_from_mujoco(mj)
+        run = _chunk_fn(model)
+        root = _root_body_qpos(mj)
+        if root is not None:
+            d_mj, _ = _initial(mj)
+            d0 = physics.make_data(model, qpos=d_mj.qpos.copy(), qvel=d_mj.qvel.copy(), ctrl=d_mj.ctrl.copy())
+            ref = np.empty((row.steps, 3))
+            for t in range(row.steps):
+                mujoco.mj_step(mj, d_mj)
+                ref[t] = d_mj.qpos[root]
+            qpos, _ = _fastrl_qpos(run, d0, np.broadcast_to(d_mj.ctrl, (row.steps, mj.nu)), args.chunk)
+            dist = np.linalg.norm(qpos[:, root] - ref, axis=1)
+            row.root_err_f32 = float(np.where(np.isfinite(dist), dist, np.inf).max())
+        row.random_steps = args.random_steps
+        row.random_finite = _random_finite(mj, model, run, args.random_steps, args.chunk)
+
+
 def _random_finite(mj: mujoco.MjModel, model: physics.Model, run, steps: int, chunk: int) -> bool:
     """Whether fastrl stays finite (and not ``diverged``) under uniformly random controls."""
     d_mj, _ = _initial(mj)
@@ -267,8 +299,7 @@ def _track(row: SceneResult, mj: mujoco.MjModel, model: physics.Model, args) -> 
         mj_k, model_k = cases[key]
         run_k = run if key == "default" else _chunk_fn(model_k)
         row.qpos_err[key], row.first_off[key] = _qpos_error(mj_k, model_k, run_k, row.steps, args.chunk)
-    row.random_steps = args.random_steps
-    row.random_finite = _random_finite(mj, model, run, args.random_steps, args.chunk)
+    _float32(row, mj, args)
 
 
 def _throughput(row: SceneResult, path: pathlib.Path, mj: mujoco.MjModel, batch: int, steps: int) -> None:
@@ -333,6 +364,8 @@ def summarize(rows: list[SceneResult]) -> dict:
         "loads": sum(r.status == "loads" for r in rows),
         "tracks": {v: sum(r.tracks(v) for r in rows) for v in VARIANTS},
         "random_finite": sum(bool(r.random_finite) for r in rows),
+        "root_f32_within_1cm": sum(r.root_err_f32 is not None and r.root_err_f32 <= ROOT_TOL for r in rows),
+        "with_root": sum(r.root_err_f32 is not None for r in rows),
         "refused": len(refused),
         "errors": [r.name for r in rows if r.status == "error" or r.error],
         "features_ranked": [{"feature": f, "scenes": n} for f, n in ranked],
@@ -356,8 +389,9 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         "",
         f"- **{s['scenes']} scenes; {s['loads']} load; tracking MuJoCo C within {TOL}: "
         f"{tracks}** (max |qpos| difference in float64 over {meta['seconds']:g} s from the first "
-        f"keyframe, or qpos0, with its ctrl held). {s['random_finite']} of {s['loads']} stay finite "
-        f"over {meta['random_steps']} steps of random controls.",
+        f"keyframe, or qpos0, with its ctrl held). In float32, {s['root_f32_within_1cm']} of the "
+        f"{s['with_root']} with a free root keep it within 1 cm of MuJoCo C's; {s['random_finite']} of "
+        f"{s['loads']} stay finite over {meta['random_steps']} steps of random controls.",
         f"- Errors other than a refusal: {', '.join(s['errors']) or 'none'}.",
         f"- Scenes one missing feature away from loading: {len(s['one_feature_away'])}"
         + "".join(f"\n  - `{n}`: {f}" for n, f in s["one_feature_away"].items()),
@@ -383,15 +417,16 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         "## Scenes",
         "",
         f"qpos err: the largest |qpos| difference; in brackets the first step above {TOL} "
-        "(`-`: none), then fastrl's Newton iterations. `random`: finite after the random-control steps. "
+        "(`-`: none), then fastrl's Newton iterations. `root f32`: float32 fastrl's root, largest "
+        "distance from MuJoCo C's (mm). `random`: finite after the random-control steps (float32). "
         f"Steps/s (`--throughput` only): control steps per second at batch {meta['batch']}, fastrl "
         "float32 beside `mujoco.rollout` with 2 threads.",
         "",
-        f"| scene | nq | nv | nu | ngeom | integrator | status | start | steps | {head} | random "
+        f"| scene | nq | nv | nu | ngeom | integrator | status | start | steps | {head} | root f32 | random "
         "| fastrl steps/s | MuJoCo steps/s | missing features |",
         "| --- | ---: | ---: | ---: | ---: | --- | --- | --- | ---: | "
         + "---: | " * len(variants)
-        + "--- | ---: | ---: | --- |",
+        + "---: | --- | ---: | ---: | --- |",
     ]
     for r in rows:
         errs = " | ".join(
@@ -401,9 +436,11 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
             for v in variants
         )
         rnd = "" if r.random_finite is None else f"{'yes' if r.random_finite else 'NO'} ({r.random_steps})"
+        root_mm = None if r.root_err_f32 is None else 1e3 * r.root_err_f32
         out.append(
             f"| `{r.name}` | {r.nq} | {r.nv} | {r.nu} | {r.ngeom} | {r.integrator} | {r.status} | {r.start} "
-            f"| {r.steps or ''} | {errs} | {rnd} | {_fmt(r.fastrl_sps, ',.0f')} "
+            f"| {r.steps or ''} | {errs} | {_fmt(root_mm, '.2g')} "
+            f"| {rnd} | {_fmt(r.fastrl_sps, ',.0f')} "
             f"| {_fmt(r.mujoco_sps, ',.0f')} | {'; '.join(r.features) or r.error} |"
         )
     out += ["", "## Refusal messages", ""]

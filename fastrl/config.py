@@ -172,7 +172,7 @@ class EnvConfig:
       reset_noise_scale   reset noise scale
       randomization       {mass, friction, damping} half-widths of domain randomisation
       solver_iterations   constraint solver iterations
-      integrator          "euler" or "rk4"
+      integrator          "euler", "rk4" or "implicitfast"
       timestep            physics timestep
       options             env-specific constructor options (e.g. hand_reorient's ``target``)
     """

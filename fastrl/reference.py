@@ -307,7 +307,11 @@ class GymnasiumBatch:
 # ---------------------------------------------------------------- the env's MJCF in MuJoCo C
 
 
-_MJ_INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4}
+_MJ_INTEGRATORS = {
+    "euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+}
 
 
 def _compile_asset(env: Env) -> mujoco.MjModel:

@@ -82,6 +82,7 @@ def test_quick_run(tmp_path):
             assert set(row["qpos_err"]) == {"default", "converged"}
             assert all(math.isfinite(e) for e in row["qpos_err"].values())
             assert row["qpos_err"]["converged"] <= robot_coverage.TRACK_TOL
+            assert row["root_err_f32"] <= robot_coverage.ROOT_TOL  # float32, as fastrl trains
         else:
             assert row["status"] == "refused" and row["features"]
     page = (tmp_path / "robot_coverage_quick.md").read_text()

@@ -119,7 +119,7 @@ class Env:
       randomization: domain randomisation ranges (off by default).
       asset: MJCF file (name in ``fastrl/assets`` or a path); defaults to the env's own.
       solver_iterations: constraint-solver iterations (None: the model's default).
-      integrator: ``"euler"`` or ``"rk4"`` (None: the asset's).
+      integrator: ``"euler"``, ``"rk4"`` or ``"implicitfast"`` (None: the asset's).
       timestep: physics timestep override (None: the asset's).
       terminate_when_unhealthy: end the episode when the env's health check fails.
     """

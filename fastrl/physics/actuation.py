@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import mujoco
 
@@ -10,6 +11,14 @@ from fastrl.physics.passive import gravcomp
 from fastrl.physics.types import Data, Model
 
 _DSBL = mujoco.mjtDisableBit
+
+
+def clamped_ctrl(m: Model, ctrl: jax.Array) -> jax.Array:
+    """(nu,) the controls clamped to ``ctrlrange`` where limited (unless clampctrl is disabled)."""
+    if m.actuator_ctrllimited.any() and not m.disableflags & _DSBL.mjDSBL_CLAMPCTRL:
+        lo, hi = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
+        ctrl = jnp.where(m.actuator_ctrllimited.astype(bool), jnp.clip(ctrl, lo, hi), ctrl)
+    return ctrl
 
 
 def actuation(m: Model, d: Data) -> Data:
@@ -24,11 +33,7 @@ def actuation(m: Model, d: Data) -> Data:
             actuator_length=zeros, actuator_velocity=zeros, actuator_force=zeros,
             qfrc_actuator=jnp.zeros_like(d.qvel),
         )  # fmt: skip
-    ctrl = d.ctrl
-    if m.actuator_ctrllimited.any() and not m.disableflags & _DSBL.mjDSBL_CLAMPCTRL:
-        lo, hi = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
-        limited = m.actuator_ctrllimited.astype(bool)
-        ctrl = jnp.where(limited, jnp.clip(ctrl, lo, hi), ctrl)
+    ctrl = clamped_ctrl(m, d.ctrl)
     gear = m.actuator_gear[:, 0]
     jnt = m.actuator_trnid
     length = gear * d.qpos[m.jnt_qposadr[jnt]]

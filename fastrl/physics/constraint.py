@@ -1,5 +1,5 @@
-"""Constraint rows: dof friction loss, joint limits and contacts (pyramidal friction cone), with
-MuJoCo's soft model, in MuJoCo's row order (friction loss, limits, contacts).
+"""Constraint rows: dof friction loss, joint limits and contacts (pyramidal or elliptic friction
+cone), with MuJoCo's soft model, in MuJoCo's row order (friction loss, limits, contacts).
 
 A dof with ``frictionloss > 0`` owns one always-active row (``J = e_dof``, ``pos = 0``) whose
 force the solver bounds to ``[-frictionloss, frictionloss]`` (``solver``: a Huber-like cost).
@@ -93,10 +93,41 @@ def contact_slots(m: Model) -> int:
     return sum(n for _, _, n in contact_groups(m))
 
 
+def elliptic(m: Model) -> bool:
+    """Whether frictional contacts use the elliptic cone (``<option cone="elliptic">``)."""
+    return m.cone == int(mujoco.mjtCone.mjCONE_ELLIPTIC)
+
+
+def condim_rows(m: Model, dim: int) -> int:
+    """Rows of one contact of condim ``dim``: 1 frictionless, ``dim`` for an elliptic cone (normal,
+    then each friction direction), ``2 (dim - 1)`` pyramid edges."""
+    return 1 if dim == 1 else dim if elliptic(m) else 2 * (dim - 1)
+
+
 def rows_per_slot(m: Model) -> np.ndarray:
-    """(nslot,) rows of each contact slot: 1 frictionless, 2 (condim - 1) for a pyramid."""
-    rows = [np.full(n, 1 if dim == 1 else 2 * (dim - 1), np.int64) for dim, _, n in contact_groups(m)]
+    """(nslot,) rows of each contact slot (``condim_rows``)."""
+    rows = [np.full(n, condim_rows(m, dim), np.int64) for dim, _, n in contact_groups(m)]
     return np.concatenate(rows) if rows else np.zeros(0, np.int64)
+
+
+def elliptic_blocks(m: Model) -> list[tuple[int, int, int, int]]:
+    """``(condim, first row, first slot, nslot)`` of each elliptic-cone contact group.
+
+    Their rows come last (``CONTACT_CONDIMS`` order puts the frictionless group first), each slot
+    a block of ``condim`` rows; every other row is a scalar row with a one-sided or friction-loss
+    cost.
+    """
+    if not elliptic(m):
+        return []
+    out = []
+    row = friction_dofs(m).size + limited_joints(m).size
+    slot = 0
+    for dim, _, n in contact_groups(m):
+        if dim > 1:
+            out.append((dim, row, slot, n))
+        row += n * condim_rows(m, dim)
+        slot += n
+    return out
 
 
 def contact_efc_address(m: Model) -> np.ndarray:
@@ -191,6 +222,36 @@ def stiffness_damping(m: Model, solref: jax.Array, solimp: jax.Array) -> tuple[j
     return k, b
 
 
+def _elliptic_rows(m: Model, d: Data, jac, pair, common, tran, out) -> None:
+    """Appends the rows of elliptic-cone contacts (MuJoCo's mjCNSTR_CONTACT_ELLIPTIC) to ``out``.
+
+    ``jac`` (nslot, dim, nv): the normal, then each friction direction. Only the normal row has a
+    distance; the friction rows have ``pos = 0``, no stiffness, and damping from the pair's
+    ``solreffriction`` (else its ``solref``). All rows share the normal's impedance. The
+    regulariser is ``R_0 = (1 - imp) / imp * tran`` on the normal, ``R_1 = R_0 / impratio`` and
+    ``R_j = R_1 mu_1^2 / mu_j^2`` on the friction rows (MuJoCo's mj_makeImpedance).
+    """
+    jacs, poss, arefs, dees = out
+    dist, margin, solref, solimp = common
+    n, dim = jac.shape[:2]
+    r = dist - margin
+    imp = impedance(solimp, r)
+    k, b = stiffness_damping(m, solref, solimp)
+    ref_f = m.pair_solreffriction[pair]
+    ref_f = jnp.where(jnp.any(ref_f != 0, -1, keepdims=True), ref_f, solref)
+    _, b_f = stiffness_damping(m, ref_f, solimp)
+    vel = matvec(jac, d.qvel)  # (nslot, dim)
+    aref = jnp.concatenate([(-b * vel[:, 0] - k * imp * r)[:, None], -b_f[:, None] * vel[:, 1:]], 1)
+    r0 = jnp.maximum(1e-15, (1 - imp) / imp * tran)
+    r1 = r0 / jnp.maximum(1e-15, m.impratio)
+    fric = m.pair_friction[pair, : dim - 1]
+    reg = jnp.concatenate([r0[:, None], r1[:, None] * fric[:, :1] ** 2 / fric**2], 1)
+    jacs.append(jac.reshape(n * dim, -1))
+    poss.append(jnp.concatenate([dist[:, None], jnp.zeros((n, dim - 1), dist.dtype)], 1).reshape(-1))
+    arefs.append(aref.reshape(-1))
+    dees.append(jnp.where((r < 0)[:, None], 1 / reg, 0.0).reshape(-1))
+
+
 def make_constraint(m: Model, d: Data) -> Data:
     """Assembles every constraint row (friction loss, limits, contacts: MuJoCo's order).
 
@@ -271,8 +332,11 @@ def make_constraint(m: Model, d: Data) -> Data:
                     jac_r = jac_r - _rotation_jacobian(d, mask_b(b1_all))
                 jac_rc = matmul(frame, jac_r)  # rows: about the normal, tangent1, tangent2
                 dirs += [jac_rc[:, 0]] if dim == 4 else [jac_rc[:, 0], jac_rc[:, 1], jac_rc[:, 2]]
-            mu = m.pair_friction[pair, : dim - 1]
             jn = jac_c[:, 0]
+            if elliptic(m):
+                _elliptic_rows(m, d, jnp.stack([jn, *dirs], 1), pair, common, tran, (jacs, poss, arefs, dees))
+                continue
+            mu = m.pair_friction[pair, : dim - 1]
             edges = []  # MuJoCo's pyramid edges: J_n +- mu_i J_i for each friction direction i
             for i, ji in enumerate(dirs):
                 edges += [jn + mu[:, i : i + 1] * ji, jn - mu[:, i : i + 1] * ji]

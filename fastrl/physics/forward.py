@@ -2,7 +2,7 @@
 
     step = forward (kinematics -> com quantities -> mass matrix -> bias forces -> passive
                     -> actuation -> qacc = M^-1 qfrc_smooth)
-         + integrate (semi-implicit Euler with implicit joint damping, or RK4)
+         + integrate (semi-implicit Euler with implicit joint damping, implicitfast, or RK4)
 
 As in MuJoCo, after ``step`` the derived fields (poses, forces, ``qacc``) describe the state the
 step started from (for RK4, its last stage), while ``qpos``/``qvel``/``time`` are the new state.
@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import constraint, math, smooth, solver
+from fastrl.physics import constraint, derivative, math, smooth, solver
 from fastrl.physics.actuation import actuation
 from fastrl.physics.collision_driver import collision
 from fastrl.physics.passive import passive
@@ -115,6 +115,30 @@ def euler(m: Model, d: Data) -> Data:
     return d.replace(qpos=qpos, qvel=qvel, qacc=qacc, time=d.time + h)
 
 
+def implicitfast(m: Model, d: Data) -> Data:
+    """MuJoCo's ``implicitfast``: Euler, implicit in the velocity-dependent smooth forces.
+
+    ``qacc = (M - h D)^-1 (qfrc_smooth + qfrc_constraint)`` with ``D`` the velocity derivative of
+    the passive and actuator forces (``derivative.smooth_vel``), so stiff dampers, velocity
+    servos and fluid drag stay stable at large timesteps; trees that are one free joint also take
+    their gyroscopic derivative (``derivative.free_tree_acc``), as MuJoCo 4.0 does. Positions then
+    advance with the new velocity. Expects ``forward`` to have run; ``qacc`` stays forward's (as
+    in MuJoCo), and so is the next step's warm start.
+    """
+    h = m.timestep
+    qfrc = d.qfrc_smooth + d.qfrc_constraint
+    deriv = derivative.smooth_vel(m, d)
+    qh = d.qM - h * deriv
+    free = m.jnt_dofadr[derivative.free_trees(m)][:, None] + np.arange(6)
+    if free.size:  # those blocks are solved apart; keep the global factor's rows plain M (as MuJoCo)
+        block = free[:, :, None], free[:, None, :]
+        qh = qh.at[block].set(d.qM[block])
+    qacc = derivative.free_tree_acc(m, d, deriv, qfrc, smooth.solve(m, qh, qfrc))
+    qvel = d.qvel + h * qacc
+    qpos = integrate_pos(m, d.qpos, qvel, h)
+    return d.replace(qpos=qpos, qvel=qvel, time=d.time + h)
+
+
 def _rotation_dofs(m: Model) -> np.ndarray:
     """(nblocks, 3) dof indices of every ball joint and of every free joint's rotation."""
     blocks = []
@@ -184,6 +208,8 @@ def step(m: Model, d: Data, ctrl: jax.Array | None = None) -> Data:
         d = d.replace(ctrl=jnp.asarray(ctrl, d.qvel.dtype))
     if m.integrator == Integrator.RK4:
         d = rk4(m, forward(m, d))
+    elif m.integrator == Integrator.IMPLICITFAST:
+        d = implicitfast(m, forward(m, d))
     elif _implicit_damping(m) and not has_constraints(m):
         d = euler(m, forward_forces(m, d))  # euler solves with M + hB itself
     else:

@@ -44,7 +44,7 @@ def summary_lines(m: Model) -> list[str]:
         f"mocap bodies    {m.mocap_bodies.size} (posed by Data.mocap_pos/mocap_quat)",
         f"gravity comp.   {m.gravcomp_bodies.size} bodies",
         f"constraint rows {nefc} ({nfric} friction loss + {nlim} limit + {nefc - nfric - nlim} contact, "
-        f"pyramidal cone; contact slots by condim: {condims})",
+        f"{'elliptic' if constraint.elliptic(m) else 'pyramidal'} cone; contact slots by condim: {condims})",
         f"solver          {'none traced' if nefc == 0 else f'Newton, {m.solver_iterations} iterations'}",
         f"integrator      {m.summary().split('integrator ')[1]}",
     ]
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> None:
         prog="python -m fastrl.physics.info", description=__doc__.splitlines()[0]
     )
     parser.add_argument("model", help="an MJCF file")
-    parser.add_argument("--integrator", choices=["euler", "rk4"], default=None)
+    parser.add_argument("--integrator", choices=["euler", "rk4", "implicitfast"], default=None)
     parser.add_argument("--solver-iterations", type=int, default=None, help="default: the model's own")
     args = parser.parse_args(argv)
     try:

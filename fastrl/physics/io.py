@@ -14,7 +14,7 @@ from fastrl.physics.constraint import sizes as constraint_sizes
 from fastrl.physics.types import Data, Integrator, JointType, Model
 
 _DSBL = mujoco.mjtDisableBit
-_INTEGRATORS = {"euler": Integrator.EULER, "rk4": Integrator.RK4}
+_INTEGRATORS = {"euler": Integrator.EULER, "rk4": Integrator.RK4, "implicitfast": Integrator.IMPLICITFAST}
 
 
 class UnsupportedFeatureError(ValueError):
@@ -57,6 +57,8 @@ def _check_supported(m: mujoco.MjModel) -> None:
     ]:
         if count:
             problems.append(f"{what} ({count} in the model)")
+    if m.opt.noslip_iterations > 0 and not flags & _DSBL.mjDSBL_CONSTRAINT:
+        problems.append(f"the noslip solver (<option noslip_iterations={m.opt.noslip_iterations}>)")
     if contacts_enabled(m) and (_nonzero(m, "geom_adhesion") or _nonzero(m, "pair_adhesion")):
         problems.append("contact adhesion (geom or pair adhesion)")
     condims = np.concatenate([m.geom_condim, m.pair_dim])
@@ -105,8 +107,6 @@ def _check_supported(m: mujoco.MjModel) -> None:
                 t1, t2 = (mujoco.mjtGeom(t).name[7:].lower() for t in key)
                 problems.append(f"collision {t1}-{t2} (geoms {n1!r}, {n2!r}) is not implemented")
                 break
-    if m.opt.cone != mujoco.mjtCone.mjCONE_PYRAMIDAL and contacts_enabled(m):
-        problems.append("the elliptic friction cone (use cone='pyramidal')")
     if problems:
         raise UnsupportedFeatureError("fastrl cannot simulate this model yet: " + "; ".join(problems))
 
@@ -209,7 +209,8 @@ def _explicit_pairs(m: mujoco.MjModel) -> dict[frozenset, int]:
 def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[str, np.ndarray]:
     """Contact parameters of each pair, mixed from its two geoms as MuJoCo mixes them.
 
-    An explicit ``<pair>`` takes its own condim, friction, solref, solimp, margin and gap. Other
+    An explicit ``<pair>`` takes its own condim, friction, solref, solreffriction (the elliptic
+    cone's friction rows; other pairs have none and use solref), solimp, margin and gap. Other
     pairs: condim and friction take the maximum (friction per component, expanded to MuJoCo's
     5-vector: tangential, tangential, torsional, rolling, rolling, each at least 1e-5); margins
     and gaps add up (MuJoCo >= 4.0); solref and solimp are a weighted mean with weights from
@@ -219,6 +220,7 @@ def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[st
     out = {
         "condim": np.zeros(n, np.int32), "friction": np.zeros((n, 5)), "solref": np.zeros((n, 2)),
         "solimp": np.zeros((n, 5)), "margin": np.zeros(n), "gap": np.zeros(n),
+        "solreffriction": np.zeros((n, 2)),
     }  # fmt: skip
     explicit = _explicit_pairs(m)
     for k, (g1, g2) in enumerate(pairs):
@@ -228,6 +230,7 @@ def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[st
             out["friction"][k] = np.maximum(m.pair_friction[pid], mujoco.mjMINMU)
             out["solref"][k], out["solimp"][k] = m.pair_solref[pid], m.pair_solimp[pid]
             out["margin"][k], out["gap"][k] = m.pair_margin[pid], m.pair_gap[pid]
+            out["solreffriction"][k] = m.pair_solreffriction[pid]
             continue
         p1, p2 = m.geom_priority[g1], m.geom_priority[g2]
         if p1 != p2:
@@ -312,12 +315,13 @@ def model_from_mujoco(
         if integrator not in _INTEGRATORS:
             raise ValueError(f"integrator={integrator!r}; choose one of {sorted(_INTEGRATORS)}")
         integ = _INTEGRATORS[integrator]
-    elif m.opt.integrator in (Integrator.EULER, Integrator.RK4):
+    elif m.opt.integrator in set(Integrator):
         integ = Integrator(m.opt.integrator)
     else:
         name = mujoco.mjtIntegrator(m.opt.integrator).name
         raise UnsupportedFeatureError(
-            f"integrator {name} is not implemented; pass integrator='euler' or 'rk4' to load_mjcf"
+            f"integrator {name} is not implemented; pass integrator='euler', 'rk4' or "
+            "'implicitfast' to load_mjcf"
         )
     obj = mujoco.mjtObj
     pairs = candidate_geom_pairs(m) if contacts_enabled(m) else []
@@ -371,7 +375,8 @@ def model_from_mujoco(
         actuator_forcerange=f(m.actuator_forcerange),
         actuator_gainprm=f(m.actuator_gainprm), actuator_biasprm=f(m.actuator_biasprm),
         pair_friction=f(mixed["friction"]), pair_solref=f(mixed["solref"]),
-        pair_solimp=f(mixed["solimp"]), pair_margin=f(mixed["margin"]), pair_gap=f(mixed["gap"]),
+        pair_solimp=f(mixed["solimp"]), pair_solreffriction=f(mixed["solreffriction"]),
+        pair_margin=f(mixed["margin"]), pair_gap=f(mixed["gap"]),
         jnt_solref=f(m.jnt_solref), jnt_solimp=f(m.jnt_solimp), jnt_margin=f(m.jnt_margin),
         body_invweight0=f(m.body_invweight0), dof_invweight0=f(m.dof_invweight0),
         impratio=f(m.opt.impratio),
@@ -392,7 +397,8 @@ def load_mjcf(
 
     Args:
       path_or_xml: a path to an ``.xml`` file, or the XML text itself.
-      integrator: ``"euler"`` or ``"rk4"`` to override the model's ``<option integrator>``.
+      integrator: ``"euler"``, ``"rk4"`` or ``"implicitfast"`` to override the model's
+        ``<option integrator>``.
       solver_iterations: the constraint solver's static iteration count (Newton steps); default
         the MJCF's ``<custom><numeric name="fastrl_solver_iterations">`` if it sets one, else
         ``DEFAULT_SOLVER_ITERATIONS``.

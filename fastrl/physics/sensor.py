@@ -22,7 +22,8 @@ def contact_force(m: Model, d: Data) -> jax.Array:
     """Every candidate contact's force in its own contact frame (mj_contactForce).
 
     The pyramid's edge forces ``f`` (rows ``n + mu_k t_k``, ``n - mu_k t_k``) decode as normal
-    ``sum(f)`` and tangential ``mu_k (f_2k - f_2k+1)`` (mju_decodePyramid); a frictionless
+    ``sum(f)`` and tangential ``mu_k (f_2k - f_2k+1)`` (mju_decodePyramid); an elliptic cone's
+    rows are the components themselves; a frictionless
     contact's one row is its normal force. The force is exerted on geom2's body, along the frame's
     rows (normal from geom1 to geom2, then the tangents). Inactive contacts carry zero force.
 
@@ -44,6 +45,9 @@ def contact_force(m: Model, d: Data) -> jax.Array:
         start += nslot
         if dim == 1:
             slots.append(jnp.pad(d.efc_force[a][:, None], ((0, 0), (0, 5))))
+            continue
+        if constraint.elliptic(m):  # the rows are the force's components
+            slots.append(jnp.pad(d.efc_force[a[:, None] + np.arange(dim)], ((0, 0), (0, 6 - dim))))
             continue
         edges = d.efc_force[a[:, None] + np.arange(2 * (dim - 1))]  # (n, 2 (dim - 1))
         normal = jnp.sum(edges, -1, keepdims=True)

@@ -62,12 +62,91 @@ def hessian_structure(m: Model) -> tuple[tuple[int, ...], ...]:
     return tuple(tuple(range(k - 1, -1, -1)) for k in range(m.nv))
 
 
+class _Cones(typing.NamedTuple):
+    """One condim's elliptic-cone contacts: ``n`` blocks of ``dim`` rows (normal, friction dirs).
+
+    MuJoCo's cost of a block, in the scaled residual ``U = (mu jar_0, f_1 jar_1, ...)`` with
+    ``N = U_0`` and ``T = |U_1..|``: zero in the top zone ``N >= mu T`` (separating or sticking
+    inside the cone), ``sum D_j jar_j^2 / 2`` in the bottom zone ``mu N + T <= 0``, and
+    ``Dm (N - mu T)^2 / 2`` with ``Dm = D_0 / (mu^2 (1 + mu^2))`` between (sliding on the cone).
+    ``mu = f_1 / sqrt(impratio)`` is the regularised cone's friction.
+    """
+
+    jac: jax.Array  # (n, dim, nv)
+    aref: jax.Array  # (n, dim)
+    dd: jax.Array  # (n, dim)
+    mu: jax.Array  # (n,)
+    fric: jax.Array  # (n, dim - 1)
+
+    def zones(self, jar: jax.Array):
+        """``(U, N, T, top, bottom, middle)`` of the blocks at residual ``jar`` (n, dim)."""
+        u = jar * jnp.concatenate([self.mu[:, None], self.fric], 1)
+        n, t = u[:, 0], jnp.sqrt(jnp.sum(u[:, 1:] ** 2, -1))
+        top = n >= self.mu * t
+        bottom = ~top & (self.mu * n + t <= 0)
+        return u, n, t, top, bottom, ~top & ~bottom
+
+    def dm(self) -> jax.Array:
+        return self.dd[:, 0] / (self.mu**2 * (1 + self.mu**2))
+
+    def cost(self, jar: jax.Array) -> jax.Array:
+        _, n, t, _, bottom, middle = self.zones(jar)
+        quad = 0.5 * jnp.sum(self.dd * jar**2, -1)
+        return jnp.sum(
+            jnp.where(bottom, quad, jnp.where(middle, 0.5 * self.dm() * (n - self.mu * t) ** 2, 0.0))
+        )
+
+    def grad_hess(self, jar: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The cost's gradient (n, dim) and Hessian (n, dim, dim) in ``jar`` (MuJoCo's cone
+        Hessian in the middle zone)."""
+        u, n, t, _, bottom, middle = self.zones(jar)
+        mu, dim = self.mu[:, None], jar.shape[-1]
+        ts = jnp.where(middle, t, 1.0)[:, None]
+        s = (n - self.mu * t)[:, None]
+        ds = jnp.concatenate([mu, -mu * self.fric * u[:, 1:] / ts], 1)  # d(N - mu T)/d jar
+        dm = self.dm()[:, None]
+        grad = jnp.where(bottom[:, None], self.dd * jar, jnp.where(middle[:, None], dm * s * ds, 0.0))
+        # d^2 T / d jar^2 on the friction rows: f_j f_k (delta_jk / T - U_j U_k / T^3)
+        ut = u[:, 1:] / ts
+        curv_t = (jnp.eye(dim - 1, dtype=jar.dtype) - ut[:, :, None] * ut[:, None, :]) / ts[..., None]
+        curv_t = curv_t * self.fric[:, :, None] * self.fric[:, None, :]
+        hm = ds[:, :, None] * ds[:, None, :]
+        hm = hm.at[:, 1:, 1:].add(-mu[..., None] * s[..., None] * curv_t)
+        quad = self.dd[:, :, None] * jnp.eye(dim, dtype=jar.dtype)
+        hess = jnp.where(
+            bottom[:, None, None], quad, jnp.where(middle[:, None, None], dm[..., None] * hm, 0.0)
+        )
+        return grad, hess
+
+    def slope_curve(self, jar: jax.Array, s: jax.Array, alpha: jax.Array):
+        """phi'(alpha), phi''(alpha) of the blocks' cost along ``jar + alpha s`` (MuJoCo's forms)."""
+        trial = jar + alpha * s
+        _, n, t, _, bottom, middle = self.zones(trial)
+        scale = jnp.concatenate([self.mu[:, None], self.fric], 1)
+        v = s * scale
+        v0 = v[:, 0]
+        u = trial * scale
+        uv, vv = jnp.sum(u[:, 1:] * v[:, 1:], -1), jnp.sum(v[:, 1:] ** 2, -1)
+        ts = jnp.where(middle, t, 1.0)
+        t1 = uv / ts
+        t2 = vv / ts - uv * t1 / ts**2
+        g = n - self.mu * t
+        g1 = v0 - self.mu * t1
+        dm = self.dm()
+        slope_mid, curve_mid = dm * g * g1, dm * (g1**2 - g * self.mu * t2)
+        slope_bot, curve_bot = jnp.sum(self.dd * trial * s, -1), jnp.sum(self.dd * s * s, -1)
+        slope = jnp.where(bottom, slope_bot, jnp.where(middle, slope_mid, 0.0))
+        curve = jnp.where(bottom, curve_bot, jnp.where(middle, curve_mid, 0.0))
+        return jnp.sum(slope), jnp.sum(curve)
+
+
 class _Rows(typing.NamedTuple):
     """The constraint rows split the way the solver uses them (one environment).
 
     Friction-loss rows are unit vectors ``e_dof`` and limit rows signed unit vectors
     ``sign * e_dof``, both at static dofs, so products with them are reads of single dofs;
-    contact rows are dense (ncon_rows, nv).
+    scalar contact rows (pyramid edges, frictionless contacts) are dense (nc, nv), and
+    elliptic-cone contacts are blocks (``_Cones``, one per condim).
     """
 
     fr_dofs: np.ndarray  # (nfric,) static
@@ -78,23 +157,27 @@ class _Rows(typing.NamedTuple):
     lim_sign: jax.Array  # (nlim,)
     lim_aref: jax.Array
     lim_D: jax.Array
-    jac: jax.Array  # (nc, nv) contact rows
+    jac: jax.Array  # (nc, nv) scalar contact rows
     aref: jax.Array
     dd: jax.Array
+    cones: tuple[_Cones, ...]
 
-    def j(self, a: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """``J a`` of the friction-loss, limit and contact rows."""
-        return a[self.fr_dofs], self.lim_sign * a[self.lim_dofs], self.jac @ a
+    def j(self, a: jax.Array) -> tuple[jax.Array, ...]:
+        """``J a`` of the friction-loss, limit, scalar contact rows and each cone group."""
+        cones = tuple(matvec(c.jac, a) for c in self.cones)
+        return (a[self.fr_dofs], self.lim_sign * a[self.lim_dofs], self.jac @ a, *cones)
 
-    def jar(self, a: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """``J a - aref`` of the friction-loss, limit and contact rows."""
-        jf, jl, jc = self.j(a)
-        return jf - self.fr_aref, jl - self.lim_aref, jc - self.aref
+    def jar(self, a: jax.Array) -> tuple[jax.Array, ...]:
+        """``J a - aref``, split as ``j``."""
+        arefs = (self.fr_aref, self.lim_aref, self.aref, *(c.aref for c in self.cones))
+        return tuple(x - r for x, r in zip(self.j(a), arefs, strict=True))
 
-    def jt(self, fr: jax.Array, lim: jax.Array, con: jax.Array) -> jax.Array:
-        """``J^T f`` for row values ``(fr, lim, con)``."""
+    def jt(self, fr: jax.Array, lim: jax.Array, con: jax.Array, *cones: jax.Array) -> jax.Array:
+        """``J^T f`` for row values split as ``j``."""
         nv = self.jac.shape[-1]
         out = con @ self.jac if self.aref.size else jnp.zeros(nv, fr.dtype)
+        for c, f in zip(self.cones, cones, strict=True):
+            out = out + jnp.einsum("nd,ndv->v", f, c.jac)
         if self.lim_dofs.size:
             out = out.at[self.lim_dofs].add(self.lim_sign * lim)
         if self.fr_dofs.size:
@@ -111,49 +194,77 @@ class _Rows(typing.NamedTuple):
         quad = jnp.abs(self.fr_D * jf) < self.fr_loss
         return jnp.clip(self.fr_D * jf, -self.fr_loss, self.fr_loss), quad
 
+    def piecewise_linear(self) -> bool:
+        """Whether the line cost has non-quadratic pieces (friction loss, cones)."""
+        return bool(self.fr_dofs.size or self.cones)
+
 
 def _rows(m: Model, d: Data) -> _Rows:
     fr = constraint.friction_dofs(m)
     dofs = constraint.limit_dofs(m)
     nf, n = fr.size, fr.size + dofs.size
+    blocks = constraint.elliptic_blocks(m)
+    end = blocks[0][1] if blocks else d.efc_aref.shape[0]
+    cones = []
+    layout = jnp.asarray(contact_layout(m), jnp.int32)
+    for dim, row, slot, nslot in blocks:
+        rows = slice(row, row + nslot * dim)
+        fric = m.pair_friction[layout[d.contact_id[slot : slot + nslot]], : dim - 1]
+        mu = fric[:, 0] / jnp.sqrt(jnp.maximum(1e-15, m.impratio))
+        cones.append(_Cones(d.efc_J[rows].reshape(nslot, dim, -1), d.efc_aref[rows].reshape(nslot, dim),
+                            d.efc_D[rows].reshape(nslot, dim), mu, fric))  # fmt: skip
     return _Rows(fr, d.efc_aref[:nf], d.efc_D[:nf], m.dof_frictionloss[fr],
                  dofs, d.efc_J[np.arange(nf, n), dofs], d.efc_aref[nf:n], d.efc_D[nf:n],
-                 d.efc_J[n:], d.efc_aref[n:], d.efc_D[n:])  # fmt: skip
+                 d.efc_J[n:end], d.efc_aref[n:end], d.efc_D[n:end], tuple(cones))  # fmt: skip
 
 
 def _cost(rows: _Rows, d: Data, a: jax.Array) -> jax.Array:
-    jf, jl, jc = rows.jar(a)
+    jf, jl, jc, *je = rows.jar(a)
     da = a - d.qacc_smooth
     f, dd = rows.fr_loss, rows.fr_D
     friction = jnp.where(jnp.abs(dd * jf) < f, 0.5 * dd * jf**2, f * jnp.abs(jf) - 0.5 * f**2 / dd)
-    return 0.5 * (
-        jnp.sum(da * matvec(d.qM, da))
-        + jnp.sum(rows.lim_D * jnp.minimum(jl, 0.0) ** 2)
-        + jnp.sum(rows.dd * jnp.minimum(jc, 0.0) ** 2)
-    ) + jnp.sum(friction)
+    cones = sum((c.cost(r) for c, r in zip(rows.cones, je, strict=True)), jnp.zeros((), a.dtype))
+    return (
+        0.5
+        * (
+            jnp.sum(da * matvec(d.qM, da))
+            + jnp.sum(rows.lim_D * jnp.minimum(jl, 0.0) ** 2)
+            + jnp.sum(rows.dd * jnp.minimum(jc, 0.0) ** 2)
+        )
+        + jnp.sum(friction)
+        + cones
+    )
 
 
-def _quadratic(rows: _Rows, d: Data, a: jax.Array, res: tuple[jax.Array, jax.Array, jax.Array]):
+def _add_outer(hess: jax.Array, left: jax.Array, right: jax.Array) -> jax.Array:
+    """``hess + left^T right`` for (r, nv) row sets."""
+    if left.shape[0] <= UNROLLED_HESSIAN_MAX_ROWS:
+        # An unrolled sum of outer products: one fused elementwise loop, 4-5x faster on
+        # XLA:CPU than the equivalent batched dot (tiny per-environment GEMMs). It must not be
+        # fused into the factorisation's many scalar reads (each would recompute its sum: 5x
+        # slower overall), which is why H is carried across the Newton loop (see ``solve``).
+        return hess + sum(left[r][:, None] * right[r][None, :] for r in range(left.shape[0]))
+    return hess + left.T @ right
+
+
+def _quadratic(rows: _Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ...]):
     """Gradient and Hessian of the cost at ``a``, given its row residuals ``res = J a - aref``.
 
-    ``H = M + J^T diag(D * quadratic) J``; friction-loss and limit rows (unit vectors) add to
-    the diagonal.
+    ``H = M + J^T diag(D * quadratic) J`` plus each cone block's ``J^T H_cone J``; friction-loss
+    and limit rows (unit vectors) add to the diagonal.
     """
-    jf, jl, jc = res
+    jf, jl, jc, *je = res
     quad_lim, quad = rows.lim_D * (jl < 0), rows.dd * (jc < 0)
     neg_fr, quad_fr = rows.friction_force(jf)
-    grad = matvec(d.qM, a - d.qacc_smooth) + rows.jt(neg_fr, quad_lim * jl, quad * jc)
-    hess = d.qM
+    cone_grads, hess = [], d.qM
+    for c, r in zip(rows.cones, je, strict=True):
+        g, h = c.grad_hess(r)
+        cone_grads.append(g)
+        hj = jnp.einsum("nij,njv->niv", h, c.jac)
+        hess = _add_outer(hess, c.jac.reshape(-1, c.jac.shape[-1]), hj.reshape(-1, c.jac.shape[-1]))
+    grad = matvec(d.qM, a - d.qacc_smooth) + rows.jt(neg_fr, quad_lim * jl, quad * jc, *cone_grads)
     if quad.size:
-        scaled = rows.jac * quad[:, None]
-        if quad.shape[0] <= UNROLLED_HESSIAN_MAX_ROWS:
-            # An unrolled sum of outer products: one fused elementwise loop, 4-5x faster on
-            # XLA:CPU than the equivalent batched dot (tiny per-environment GEMMs). It must not be
-            # fused into the factorisation's many scalar reads (each would recompute its sum: 5x
-            # slower overall), which is why H is carried across the Newton loop (see ``solve``).
-            hess = hess + sum(scaled[r][:, None] * rows.jac[r][None, :] for r in range(quad.shape[0]))
-        else:
-            hess = hess + scaled.T @ rows.jac
+        hess = _add_outer(hess, rows.jac * quad[:, None], rows.jac)
     if rows.lim_dofs.size or rows.fr_dofs.size:
         nv = d.qM.shape[-1]
         diag = jnp.zeros(nv, hess.dtype).at[rows.lim_dofs].add(quad_lim)
@@ -205,6 +316,9 @@ def _newton_step(structure, rows: _Rows, d: Data, carry):
     def slope_curve(alpha):
         """phi'(alpha) and phi''(alpha) (one-sided where a row changes zone)."""
         slope, curve = alpha * s_m_s + s_m_a, s_m_s
+        for c, jar, s in zip(rows.cones, res[3:], js[3:], strict=True):
+            sc, cc = c.slope_curve(jar, s, alpha)
+            slope, curve = slope + sc, curve + cc
         for jar, s, dd in ((res[1], js[1], rows.lim_D), (res[2], js[2], rows.dd)):
             trial = jar + alpha * s
             neg = dd * (trial < 0)
@@ -216,7 +330,7 @@ def _newton_step(structure, rows: _Rows, d: Data, carry):
             curve = curve + jnp.sum(rows.fr_D * quad_fr * js[0] ** 2)
         return slope, curve
 
-    search = _bracketed_newton if rows.fr_dofs.size else _newton_1d
+    search = _bracketed_newton if rows.piecewise_linear() else _newton_1d
     alpha = search(slope_curve, a.dtype)
     # The step length carries no gradient: where the iterate has converged the step is zero and
     # d(alpha) = d(slope) / curve is 0/0 (NaN in reverse mode). With alpha held fixed, the
@@ -244,8 +358,9 @@ def solve(m: Model, d: Data) -> Data:
     carry = (a, res, *_quadratic(rows, d, a, res))
     carry = jax.lax.fori_loop(0, m.solver_iterations, lambda _, c: _newton_step(structure, rows, d, c), carry)
     a = carry[0]
-    jf, jl, jc = rows.jar(a)
+    jf, jl, jc, *je = rows.jar(a)
     ff = -rows.friction_force(jf)[0]
     fl, fc = -rows.lim_D * jnp.minimum(jl, 0.0), -rows.dd * jnp.minimum(jc, 0.0)
-    force = jnp.concatenate([ff, fl, fc])
-    return d.replace(qacc=a, efc_force=force, qfrc_constraint=rows.jt(ff, fl, fc))
+    fe = [-c.grad_hess(r)[0] for c, r in zip(rows.cones, je, strict=True)]
+    force = jnp.concatenate([ff, fl, fc, *(f.reshape(-1) for f in fe)])
+    return d.replace(qacc=a, efc_force=force, qfrc_constraint=rows.jt(ff, fl, fc, *fe))

@@ -43,6 +43,7 @@ class Integrator(enum.IntEnum):
 
     EULER = 0
     RK4 = 1
+    IMPLICITFAST = 3
 
 
 JOINT_NQ = {JointType.FREE: 7, JointType.BALL: 4, JointType.SLIDE: 1, JointType.HINGE: 1}
@@ -99,6 +100,7 @@ class Model:
       actuator_gear (nu,6), actuator_ctrlrange (nu,2), actuator_forcerange (nu,2)
       actuator_gainprm (nu,10), actuator_biasprm (nu,10)
       pair_friction (npair,5), pair_solref (npair,2), pair_solimp (npair,5)
+      pair_solreffriction (npair,2)                 the elliptic cone's friction solref; 0: solref
       pair_margin (npair,), pair_gap (npair,)       contact parameters, mixed as MuJoCo mixes them
       jnt_solref (njnt,2), jnt_solimp (njnt,5), jnt_margin (njnt,)   joint-limit softness
       body_invweight0 (nbody,2), dof_invweight0 (nv,)   MuJoCo's inverse weights (for R)
@@ -190,6 +192,7 @@ class Model:
     actuator_biasprm: jax.Array
     pair_friction: jax.Array
     pair_solref: jax.Array
+    pair_solreffriction: jax.Array
     pair_solimp: jax.Array
     pair_margin: jax.Array
     pair_gap: jax.Array

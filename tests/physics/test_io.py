@@ -60,9 +60,9 @@ def test_public_api_shapes():
             BASE.format(
                 body='<geom type="plane" size="1 1 1"/>'
                 '<body><freejoint/><geom size="0.1" condim="6"/></body>',
-                extra='<option cone="elliptic"/>',
+                extra='<option cone="elliptic" noslip_iterations="3"/>',
             ),
-            ["elliptic friction cone"],
+            ["noslip solver", "noslip_iterations=3"],
         ),
         (
             BASE.format(
@@ -71,6 +71,7 @@ def test_public_api_shapes():
             ),
             ["ellipsoid fluid model", "'fin'"],
         ),
+        (_xml(extra='<option integrator="implicit"/>'), ["integrator mjINT_IMPLICIT", "'implicitfast'"]),
     ],
 )
 def test_unsupported_features_raise_clear_errors(xml, words):
