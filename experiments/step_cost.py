@@ -1,12 +1,19 @@
 """Physics step cost per env, for before/after comparisons of engine changes.
 
-    python experiments/step_cost.py ant,hopper,...   # prints {env: microseconds per env-step} as JSON
+    python experiments/step_cost.py ant,hopper,...          # {env: microseconds per env-step}
+    python experiments/step_cost.py ant,hopper,... --hlo    # {env: digest of the compiled step}
 
 jax.jit(jax.vmap(physics.step)) at batch 256 from each env's reset states, zero controls; the best of
 5 repeats of 10 steps. Run it from two checkouts alternately (PYTHONPATH=<checkout>) for a ratio.
+
+``--hlo`` times nothing: it digests XLA's optimised program for one env's step, its instructions
+with names, metadata and numbering stripped and sorted. Equal digests from two checkouts mean the
+change compiled to the same program for that env, so its step cost cannot have moved.
 """
 
+import hashlib
 import json
+import re
 import sys
 import time
 
@@ -15,10 +22,27 @@ import jax.numpy as jnp
 
 from fastrl import envs, physics
 
+
+def program_digest(m, d) -> str:
+    """A digest of the optimised HLO of ``physics.step``: its instructions, names dropped."""
+    text = jax.jit(lambda d: physics.step(m, d)).lower(d).compile().as_text()
+    ops = []
+    for line in text.splitlines():
+        if " = " not in line:
+            continue
+        line = re.sub(r", metadata=\{[^}]*\}", "", line)
+        line = re.sub(r"%[\w.-]+", "%x", line)
+        ops.append(re.sub(r"\.\d+", "", line))
+    return hashlib.sha256("\n".join(sorted(ops)).encode()).hexdigest()[:16]
+
+
 out = {}
 for name in sys.argv[1].split(","):
     env = envs.make(name)
     m = env.model
+    if "--hlo" in sys.argv:
+        out[name] = program_digest(m, env.reset(jax.random.PRNGKey(0)).data)
+        continue
     keys = jax.random.split(jax.random.PRNGKey(0), 256)
     s = jax.vmap(env.reset)(keys)
     d = s.data
