@@ -1,5 +1,6 @@
-"""Constraint rows: dof friction loss, joint limits and contacts (pyramidal or elliptic friction
-cone), with MuJoCo's soft model, in MuJoCo's row order (friction loss, limits, contacts).
+"""Constraint rows: equality constraints, dof friction loss, joint limits and contacts (pyramidal
+or elliptic friction cone), with MuJoCo's soft model, in MuJoCo's row order (equality, friction
+loss, limits, contacts).
 
 A dof with ``frictionloss > 0`` owns one always-active row (``J = e_dof``, ``pos = 0``) whose
 force the solver bounds to ``[-frictionloss, frictionloss]`` (``solver``: a Huber-like cost).
@@ -25,7 +26,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import tree
+from fastrl.physics import equality, tree
 from fastrl.physics.collision_driver import contact_layout
 from fastrl.physics.math import cross, matmul, matvec
 from fastrl.physics.types import Data, JointType, Model
@@ -120,7 +121,7 @@ def elliptic_blocks(m: Model) -> list[tuple[int, int, int, int]]:
     if not elliptic(m):
         return []
     out = []
-    row = friction_dofs(m).size + limited_joints(m).size
+    row = first_contact_row(m)
     slot = 0
     for dim, _, n in contact_groups(m):
         if dim > 1:
@@ -137,12 +138,17 @@ def contact_efc_address(m: Model) -> np.ndarray:
     ``CONTACT_CONDIMS`` order; ``Data.contact_id`` names the candidate each slot holds.
     """
     rows = rows_per_slot(m)
-    return friction_dofs(m).size + limited_joints(m).size + np.cumsum(rows) - rows
+    return first_contact_row(m) + np.cumsum(rows) - rows
+
+
+def first_contact_row(m: Model) -> int:
+    """Rows before the contacts': equality, friction-loss and limit rows."""
+    return equality.nrows(m) + friction_dofs(m).size + limited_joints(m).size
 
 
 def sizes(m: Model) -> tuple[int, int]:
     """(ncon, nefc): candidate contacts and constraint rows; static for a model."""
-    nrows = friction_dofs(m).size + limited_joints(m).size + int(rows_per_slot(m).sum())
+    nrows = first_contact_row(m) + int(rows_per_slot(m).sum())
     return contact_layout(m).size, nrows
 
 
@@ -252,6 +258,21 @@ def _elliptic_rows(m: Model, d: Data, jac, pair, common, tran, out) -> None:
     dees.append(jnp.where((r < 0)[:, None], 1 / reg, 0.0).reshape(-1))
 
 
+def _equality_rows(m: Model, d: Data, out) -> None:
+    """Appends the equality constraints' rows (``equality.rows``): always within their margin
+    (0) while active, each constraint's impedance from the norm of its violation, and the
+    reference acceleration less the Jacobian's rate times qvel (MuJoCo's mj_Jdotv)."""
+    jacs, poss, arefs, dees = out
+    eq = equality.rows(m, d)
+    imp = impedance(eq.solimp, eq.block_pos)
+    k, b = stiffness_damping(m, eq.solref, eq.solimp)
+    vel = matvec(eq.jac, d.qvel)
+    jacs.append(eq.jac)
+    poss.append(eq.pos)
+    arefs.append(-b * vel - k * imp * eq.pos - eq.jdotv)
+    dees.append(jnp.where(eq.active, 1 / jnp.maximum(1e-15, (1 - imp) / imp * eq.diag), 0.0))
+
+
 def make_constraint(m: Model, d: Data) -> Data:
     """Assembles every constraint row (friction loss, limits, contacts: MuJoCo's order).
 
@@ -275,6 +296,9 @@ def make_constraint(m: Model, d: Data) -> Data:
         arefs.append(-rep(b) * vel - rep(k * imp * r))
         active = True if always else rep(r < 0)
         dees.append(jnp.where(active, 1 / rep(regulariser), 0.0))
+
+    if m.eq_type.size:
+        _equality_rows(m, d, (jacs, poss, arefs, dees))
 
     fric = friction_dofs(m)
     if fric.size:

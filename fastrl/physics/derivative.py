@@ -13,23 +13,17 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import math, smooth, tree
-from fastrl.physics.actuation import clamped_ctrl
+from fastrl.physics import math, smooth, tendon, tree
+from fastrl.physics.actuation import clamped_ctrl, moment_actuators, moments
 from fastrl.physics.passive import fluid
 from fastrl.physics.types import Data, JointType, Model
 
 _DSBL = mujoco.mjtDisableBit
 
 
-def _actuator_vel(m: Model, d: Data) -> jax.Array:
-    """(nv,) ``d qfrc_actuator / d qvel``, diagonal for joint transmissions (mjd_actuator_vel).
-
-    ``gear^2 (biasprm[2] + gainprm[2] ctrl)`` for affine bias and gain. As in MuJoCo 4.0, an
-    actuator whose force is at its ``forcerange``, or whose joint's actuator force is at its
-    ``actuatorfrcrange``, contributes nothing (its force does not move with the velocity there).
-    """
-    if m.nu == 0 or m.disableflags & _DSBL.mjDSBL_ACTUATION:
-        return jnp.zeros_like(d.qvel)
+def _bias_vel(m: Model, d: Data) -> jax.Array:
+    """(nu,) ``d actuator_force / d actuator_velocity``: ``biasprm[2] + gainprm[2] ctrl`` for
+    affine bias and gain, zero where the force is at its ``forcerange`` (as MuJoCo 4.0)."""
     ctrl = clamped_ctrl(m, d.ctrl)
     affine_gain = jnp.asarray(m.actuator_gaintype == 1, ctrl.dtype)
     affine_bias = jnp.asarray(m.actuator_biastype == 1, ctrl.dtype)
@@ -39,7 +33,19 @@ def _actuator_vel(m: Model, d: Data) -> jax.Array:
         force = d.actuator_force
         saturated = m.actuator_forcelimited.astype(bool) & ((force <= lo) | (force >= hi))
         bias_vel = jnp.where(saturated, 0.0, bias_vel)
-    pattern = jnp.asarray(tree.actuator_moment_pattern(m), ctrl.dtype)
+    return bias_vel
+
+
+def _actuator_vel(m: Model, d: Data) -> jax.Array:
+    """(nv,) ``d qfrc_actuator / d qvel`` of joint transmissions, diagonal (mjd_actuator_vel).
+
+    ``gear^2 * _bias_vel``. As in MuJoCo 4.0, an actuator whose joint's actuator force is at its
+    ``actuatorfrcrange`` contributes nothing (its force does not move with the velocity there).
+    """
+    if m.nu == 0 or m.disableflags & _DSBL.mjDSBL_ACTUATION:
+        return jnp.zeros_like(d.qvel)
+    bias_vel = _bias_vel(m, d)
+    pattern = jnp.asarray(tree.actuator_moment_pattern(m), bias_vel.dtype)
     per_dof = pattern @ (m.actuator_gear[:, 0] ** 2 * bias_vel)
     if m.jnt_actfrclimited.any():
         lim = m.jnt_actfrclimited.astype(bool)
@@ -50,10 +56,25 @@ def _actuator_vel(m: Model, d: Data) -> jax.Array:
     return per_dof
 
 
+def _coupled_vel(m: Model, d: Data) -> jax.Array:
+    """(nv, nv) the share of ``smooth_vel`` of tendon dampers, ``-J^T b J``, and of actuators with
+    a moment row (tendons, sites), ``moment^T bias_vel moment``, kept (as in MuJoCo's sparse
+    ``qDeriv``) between dofs on one path to the root."""
+    out = jnp.zeros((m.nv, m.nv), d.qvel.dtype)
+    if m.ntendon and not m.disableflags & _DSBL.mjDSBL_DAMPER:
+        out = out - (d.ten_J.T * m.tendon_damping) @ d.ten_J
+    others = moment_actuators(m)
+    if others.size and not m.disableflags & _DSBL.mjDSBL_ACTUATION:
+        moment, _ = moments(m, d)
+        out = out + (moment.T * _bias_vel(m, d)[others]) @ moment
+    return out * jnp.asarray(tendon.tree_mask(m), out.dtype)
+
+
 def smooth_vel(m: Model, d: Data) -> jax.Array:
     """(nv, nv) ``d (qfrc_passive + qfrc_actuator) / d qvel`` (mjd_smooth_vel, ``flg_bias = 0``).
 
-    Joint damping and actuator velocity gains on the diagonal, and the inertia-box fluid forces.
+    Joint damping and joint actuators' velocity gains on the diagonal, tendon damping and tendon
+    and site actuators (``_coupled_vel``), and the inertia-box fluid forces.
     MuJoCo's fluid derivative (mjd_inertiaBoxFluid, ``J^T B J`` in each body's inertial frame) is
     the exact derivative of the fluid force, so forward-mode autodiff of ``fluid`` gives it to
     rounding. Every term is symmetric, so MuJoCo's use of the lower triangle changes nothing.
@@ -62,12 +83,14 @@ def smooth_vel(m: Model, d: Data) -> jax.Array:
       m: the model.
       d: the data after ``forward`` (uses qvel, ctrl, actuator_force, qfrc_actuator, cdof).
     Returns:
-      (nv, nv) the derivative; tendon damping is absent because fastrl has none.
+      (nv, nv) the derivative.
     """
     diag = _actuator_vel(m, d)
     if not m.disableflags & _DSBL.mjDSBL_DAMPER:
         diag = diag - m.dof_damping
     deriv = jnp.diag(diag)
+    if m.ntendon or moment_actuators(m).size:
+        deriv = deriv + _coupled_vel(m, d)
     if m.body_fluid.any():  # only where springs and dampers are not both disabled (io.fluid_enabled)
         force = lambda qvel: fluid(m, smooth.com_vel(m, d.replace(qvel=qvel)))  # noqa: E731
         deriv = deriv + jax.jacfwd(force)(d.qvel)

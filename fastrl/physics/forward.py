@@ -1,7 +1,7 @@
 """The step: forward dynamics, then integration (mj_forward, mj_Euler, mj_RungeKutta).
 
-    step = forward (kinematics -> com quantities -> mass matrix -> bias forces -> passive
-                    -> actuation -> qacc = M^-1 qfrc_smooth)
+    step = forward (kinematics -> com quantities -> tendons -> mass matrix -> bias forces
+                    -> passive -> actuation -> qacc = M^-1 qfrc_smooth)
          + integrate (semi-implicit Euler with implicit joint damping, implicitfast, or RK4)
 
 As in MuJoCo, after ``step`` the derived fields (poses, forces, ``qacc``) describe the state the
@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import constraint, derivative, math, smooth, solver
+from fastrl.physics import constraint, derivative, math, smooth, solver, tendon
 from fastrl.physics.actuation import actuation
 from fastrl.physics.collision_driver import collision
 from fastrl.physics.passive import passive
@@ -30,9 +30,11 @@ def forward_forces(m: Model, d: Data) -> Data:
     """Every derived quantity up to the total smooth force ``qfrc_smooth`` (no solve)."""
     d = smooth.kinematics(m, d)
     d = smooth.com_pos(m, d)
+    d = tendon.tendon(m, d)
     d = smooth.crb(m, d)
     d = smooth.com_vel(m, d)
     d = smooth.rne(m, d)
+    d = tendon.armature(m, d)
     d = passive(m, d)
     d = actuation(m, d)
     return d.replace(qfrc_smooth=d.qfrc_passive - d.qfrc_bias + d.qfrc_actuator + d.qfrc_applied)

@@ -12,8 +12,9 @@ import argparse
 import collections
 
 import mujoco
+import numpy as np
 
-from fastrl.physics import constraint, io
+from fastrl.physics import constraint, equality, io, tendon
 from fastrl.physics.types import GeomType, JointType, Model
 
 
@@ -30,11 +31,16 @@ def summary_lines(m: Model) -> list[str]:
     nfric = constraint.friction_dofs(m).size
     condims = ", ".join(f"{n} x {dim}" for dim, _, n in constraint.contact_groups(m)) or "none"
     all_pairs = m.ngeom * (m.ngeom - 1) // 2
+    eq_kinds = collections.Counter(mujoco.mjtEq(t).name[5:].lower() for t in m.eq_type)
+    kinds = ", ".join(f"{n} {k}" for k, n in sorted(eq_kinds.items())) or "none"
+    off = int((m.eq_active0 == 0).sum())
+    ne = equality.nrows(m)
     fmt = lambda c: ", ".join(f"{n} {k}" for k, n in sorted(c.items())) or "none"  # noqa: E731
     return [
         f"bodies          {m.nbody - 1} (+ world)",
         f"joints          {m.njnt} ({fmt(joints)}); nq {m.nq}, nv {m.nv}",
         f"actuators       {m.nu}",
+        f"tendons         {_tendons(m)}",
         f"geoms           {m.ngeom} ({fmt(geoms)})",
         f"contact pairs   {m.npair} kept of {all_pairs} geom pairs ({fmt(pairs)})",
         f"contacts        {ncon} candidates (fixed count, active when within margin); "
@@ -42,12 +48,21 @@ def summary_lines(m: Model) -> list[str]:
         f"limited joints  {nlim}",
         f"friction loss   {constraint.friction_dofs(m).size} dofs (one row each)",
         f"mocap bodies    {m.mocap_bodies.size} (posed by Data.mocap_pos/mocap_quat)",
+        f"equalities      {m.eq_type.size} ({kinds}; {off} off at reset), {ne} rows",
         f"gravity comp.   {m.gravcomp_bodies.size} bodies",
-        f"constraint rows {nefc} ({nfric} friction loss + {nlim} limit + {nefc - nfric - nlim} contact, "
+        f"constraint rows {nefc} ({f'{ne} equality + ' if ne else ''}{nfric} friction loss + {nlim} limit + "
+        f"{nefc - ne - nfric - nlim} contact, "
         f"{'elliptic' if constraint.elliptic(m) else 'pyramidal'} cone; contact slots by condim: {condims})",
         f"solver          {'none traced' if nefc == 0 else f'Newton, {m.solver_iterations} iterations'}",
         f"integrator      {m.summary().split('integrator ')[1]}",
     ]
+
+
+def _tendons(m: Model) -> str:
+    """``N (a fixed, b spatial; c actuated)``: the simulated tendons (none when all are inert)."""
+    fixed = int(tendon.is_fixed(m).sum())
+    driven = np.unique(m.actuator_trnid[m.actuator_trntype == int(mujoco.mjtTrn.mjTRN_TENDON)]).size
+    return f"{m.ntendon} ({fixed} fixed, {m.ntendon - fixed} spatial; {driven} actuated)"
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -50,8 +50,8 @@ def _check_supported(m: mujoco.MjModel) -> None:
     flags = m.opt.disableflags
     problems = []
     problems.extend(_tendon_problems(m))
+    problems.extend(_equality_problems(m))
     for count, what in [
-        (m.neq, "equality constraints"),
         (m.nflex, "flexes"),
         (m.nplugin, "plugins"),
     ]:
@@ -80,9 +80,13 @@ def _check_supported(m: mujoco.MjModel) -> None:
     for i in range(m.nu):
         name = mujoco.mj_id2name(m, obj.mjOBJ_ACTUATOR, i) or str(i)
         trn, jid = m.actuator_trntype[i], m.actuator_trnid[i, 0]
-        if trn != int(mujoco.mjtTrn.mjTRN_JOINT):
+        joint = trn == int(mujoco.mjtTrn.mjTRN_JOINT)
+        site = trn == int(mujoco.mjtTrn.mjTRN_SITE)
+        if not joint and not site and trn != int(mujoco.mjtTrn.mjTRN_TENDON):
             problems.append(f"actuator {name!r}: transmission {mujoco.mjtTrn(trn).name}")
-        elif m.jnt_type[jid] not in (JointType.HINGE, JointType.SLIDE):
+        elif site and m.actuator_trnid[i, 1] >= 0:
+            problems.append(f"actuator {name!r}: transmission mjTRN_SITE with a refsite")
+        elif joint and m.jnt_type[jid] not in (JointType.HINGE, JointType.SLIDE):
             problems.append(f"actuator {name!r}: drives a free/ball joint")
         if m.actuator_dyntype[i] != int(mujoco.mjtDyn.mjDYN_NONE):
             dyn = mujoco.mjtDyn(m.actuator_dyntype[i]).name
@@ -111,34 +115,84 @@ def _check_supported(m: mujoco.MjModel) -> None:
         raise UnsupportedFeatureError("fastrl cannot simulate this model yet: " + "; ".join(problems))
 
 
-def _tendon_problems(m: mujoco.MjModel) -> list[str]:
-    """Tendons that act on the dynamics, each named with what it does.
-
-    fastrl computes no tendon lengths. A tendon without limits, springs, dampers, friction loss,
-    armature or actuators only measures a length (Gymnasium's humanoid has two such fixed
-    tendons), so it is ignored; anything else about a tendon changes the motion and is refused.
-    """
+def _tendon_roles(m: mujoco.MjModel) -> dict[str, np.ndarray]:
+    """(ntendon,) bool for each way a tendon can act on the dynamics (disabled ones left out)."""
     flags = m.opt.disableflags
+    spring, damper = not flags & _DSBL.mjDSBL_SPRING, not flags & _DSBL.mjDSBL_DAMPER
     actuated = np.zeros(m.ntendon, bool)
     by_tendon = m.actuator_trntype == int(mujoco.mjtTrn.mjTRN_TENDON)
     actuated[m.actuator_trnid[by_tendon, 0]] = True
-    stiff = (m.tendon_stiffness != 0) | (m.tendon_springyield != 0)
-    stiff |= np.any(m.tendon_stiffnesspoly != 0, axis=-1)
-    damp = (m.tendon_damping != 0) | np.any(m.tendon_dampingpoly != 0, axis=-1)
-    acts = {
+    nonlinear_spring = (m.tendon_springyield != 0) | np.any(m.tendon_stiffnesspoly != 0, axis=-1)
+    return {
         "limited": m.tendon_limited.astype(bool) & limits_enabled(m),
-        "stiffness": stiff & (not flags & _DSBL.mjDSBL_SPRING),
-        "damping": damp & (not flags & _DSBL.mjDSBL_DAMPER),
+        "stiffness": (m.tendon_stiffness != 0) & spring,
+        "nonlinear stiffness (stiffnesspoly, springyield)": nonlinear_spring & spring,
+        "damping": (m.tendon_damping != 0) & damper,
+        "nonlinear damping (dampingpoly)": np.any(m.tendon_dampingpoly != 0, axis=-1) & damper,
         "frictionloss": (m.tendon_frictionloss != 0) & (not flags & _DSBL.mjDSBL_FRICTIONLOSS),
         "armature": m.tendon_armature != 0,
         "an actuator": actuated,
+        "actuatorfrcrange": m.tendon_actfrclimited.astype(bool) & actuated,
     }
+
+
+# What fastrl does not simulate yet about a tendon (the rest of _tendon_roles it does).
+_TENDON_REFUSED = (
+    "limited", "nonlinear stiffness (stiffnesspoly, springyield)", "nonlinear damping (dampingpoly)",
+    "frictionloss", "actuatorfrcrange",
+)  # fmt: skip
+
+
+def tendons_act(m: mujoco.MjModel) -> bool:
+    """Whether any tendon acts on the dynamics. If none does, ``Model`` keeps no tendons: they
+    would only measure lengths (Gymnasium's humanoid has two such fixed tendons), and the
+    compiled step stays that of a model without them."""
+    return bool(any(mask.any() for mask in _tendon_roles(m).values()))
+
+
+def _tendon_problems(m: mujoco.MjModel) -> list[str]:
+    """Tendons that act on the dynamics in a way fastrl does not simulate, each named with it.
+
+    Springs (with a dead band), dampers, armature and actuators are simulated (``tendon.py``).
+    Armature on a spatial tendon that wraps a geom is refused, as MuJoCo's compiler refuses it
+    (mj_tendonDot has no derivative of the wrap), for a model whose armature was set after
+    compiling.
+    """
+    roles = _tendon_roles(m)
+    geoms = (int(mujoco.mjtWrap.mjWRAP_SPHERE), int(mujoco.mjtWrap.mjWRAP_CYLINDER))
+    wraps_geom = np.zeros(m.ntendon, bool)
+    for i in range(m.ntendon):
+        types = m.wrap_type[m.tendon_adr[i] : m.tendon_adr[i] + m.tendon_num[i]]
+        wraps_geom[i] = np.isin(types, geoms).any()
+    refused = {name: roles[name] for name in _TENDON_REFUSED}
+    refused["armature on a tendon wrapping a geom"] = roles["armature"] & wraps_geom
     out = []
     for i in range(m.ntendon):
-        what = [name for name, mask in acts.items() if mask[i]]
+        what = [name for name, mask in refused.items() if mask[i]]
         if what:
             name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_TENDON, i) or str(i)
             out.append(f"tendon {name!r} ({', '.join(what)})")
+    return out
+
+
+_EQ_KINDS = tuple(
+    int(k) for k in (mujoco.mjtEq.mjEQ_CONNECT, mujoco.mjtEq.mjEQ_WELD, mujoco.mjtEq.mjEQ_JOINT)
+)
+
+
+def equalities_enabled(m: mujoco.MjModel) -> bool:
+    return not m.opt.disableflags & (_DSBL.mjDSBL_EQUALITY | _DSBL.mjDSBL_CONSTRAINT)
+
+
+def _equality_problems(m: mujoco.MjModel) -> list[str]:
+    """Equality constraints of a kind fastrl does not simulate (tendon, flex), each named."""
+    if not equalities_enabled(m):
+        return []
+    out = []
+    for i in range(m.neq):
+        if int(m.eq_type[i]) not in _EQ_KINDS:
+            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_EQUALITY, i) or str(i)
+            out.append(f"equality {name!r} ({mujoco.mjtEq(m.eq_type[i]).name} constraint)")
     return out
 
 
@@ -332,11 +386,16 @@ def model_from_mujoco(
         ncand = sum(PRIMITIVES[(int(m.geom_type[a]), int(m.geom_type[b]))][1] for a, b in pairs)
         nconmax = m.nconmax if m.nconmax > 0 else default_nconmax(ncand)
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
+    tens = np.arange(m.ntendon) if tendons_act(m) else np.zeros(0, np.int64)
+    wraps = np.arange(m.nwrap) if tens.size else np.zeros(0, np.int64)
+    tendon_limited = m.tendon_limited[tens] if limits_enabled(m) else np.zeros(tens.size, np.int32)
+    eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
     f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
     gravity = m.opt.gravity * (0.0 if m.opt.disableflags & _DSBL.mjDSBL_GRAVITY else 1.0)
     return Model(
         nq=m.nq, nv=m.nv, nu=m.nu, nbody=m.nbody, njnt=m.njnt, ngeom=m.ngeom, nsite=m.nsite,
+        ntendon=int(tens.size),
         body_parentid=i32(m.body_parentid), body_rootid=i32(m.body_rootid),
         body_jntnum=i32(m.body_jntnum), body_jntadr=i32(m.body_jntadr),
         body_dofnum=i32(m.body_dofnum), body_dofadr=i32(m.body_dofadr),
@@ -349,12 +408,18 @@ def model_from_mujoco(
         site_bodyid=i32(m.site_bodyid), body_fluid=i32(_fluid_bodies(m)),
         gravcomp_bodies=i32(np.flatnonzero(m.body_gravcomp != 0)), jnt_actgravcomp=i32(m.jnt_actgravcomp),
         mocap_bodies=i32(np.argsort(np.where(m.body_mocapid >= 0, m.body_mocapid, m.nbody))[: m.nmocap]),
-        actuator_trnid=i32(m.actuator_trnid[:, 0]),
+        actuator_trntype=i32(m.actuator_trntype), actuator_trnid=i32(m.actuator_trnid[:, 0]),
         actuator_gaintype=i32(m.actuator_gaintype), actuator_biastype=i32(m.actuator_biastype),
         actuator_ctrllimited=i32(m.actuator_ctrllimited),
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
+        tendon_adr=i32(m.tendon_adr[tens]), tendon_num=i32(m.tendon_num[tens]),
+        wrap_type=i32(m.wrap_type[wraps]), wrap_objid=i32(m.wrap_objid[wraps]),
+        wrap_prm=np.asarray(m.wrap_prm[wraps], np.float64).copy(), tendon_limited=i32(tendon_limited),
+        armature_tendons=i32(np.flatnonzero(m.tendon_armature[tens] != 0)),
         pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
+        eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
+        eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
         solver_iterations=int(solver_iterations), nconmax=int(nconmax),
         integrator=int(integ), disableflags=int(m.opt.disableflags),
         body_names=_names(m, obj.mjOBJ_BODY, m.nbody), jnt_names=_names(m, obj.mjOBJ_JOINT, m.njnt),
@@ -378,6 +443,14 @@ def model_from_mujoco(
         pair_solimp=f(mixed["solimp"]), pair_solreffriction=f(mixed["solreffriction"]),
         pair_margin=f(mixed["margin"]), pair_gap=f(mixed["gap"]),
         jnt_solref=f(m.jnt_solref), jnt_solimp=f(m.jnt_solimp), jnt_margin=f(m.jnt_margin),
+        tendon_stiffness=f(m.tendon_stiffness[tens]), tendon_damping=f(m.tendon_damping[tens]),
+        tendon_armature=f(m.tendon_armature[tens]), tendon_lengthspring=f(m.tendon_lengthspring[tens]),
+        tendon_range=f(m.tendon_range[tens]), tendon_margin=f(m.tendon_margin[tens]),
+        tendon_solref_lim=f(m.tendon_solref_lim[tens]), tendon_solimp_lim=f(m.tendon_solimp_lim[tens]),
+        tendon_frictionloss=f(m.tendon_frictionloss[tens]),
+        tendon_solref_fri=f(m.tendon_solref_fri[tens]), tendon_solimp_fri=f(m.tendon_solimp_fri[tens]),
+        tendon_invweight0=f(m.tendon_invweight0[tens]),
+        eq_data=f(m.eq_data[eqs]), eq_solref=f(m.eq_solref[eqs]), eq_solimp=f(m.eq_solimp[eqs]),
         body_invweight0=f(m.body_invweight0), dof_invweight0=f(m.dof_invweight0),
         impratio=f(m.opt.impratio),
         density=f(m.opt.density), viscosity=f(m.opt.viscosity), wind=f(m.opt.wind),
@@ -432,10 +505,13 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
         qpos=qpos, qvel=qvel, ctrl=ctrl, time=z(), qfrc_applied=z(nv), qacc_warmstart=z(nv),
         mocap_pos=model.body_pos[model.mocap_bodies],
         mocap_quat=model.body_quat[model.mocap_bodies],
+        eq_active=jnp.asarray(model.eq_active0.astype(bool)),
         xpos=z(nb, 3), xquat=z(nb, 4).at[:, 0].set(1.0), xmat=eye, xipos=z(nb, 3), ximat=eye,
         xanchor=z(nj, 3), xaxis=z(nj, 3), geom_xpos=z(ng, 3), geom_xmat=z(ng, 3, 3),
         site_xpos=z(ns, 3), site_xmat=z(ns, 3, 3), subtree_com=z(nb, 3), cinert=z(nb, 10),
-        cdof=z(nv, 6), cvel=z(nb, 6), cdof_dot=z(nv, 6), qM=z(nv, nv), qfrc_bias=z(nv),
+        cdof=z(nv, 6), cvel=z(nb, 6), cdof_dot=z(nv, 6),
+        ten_length=z(model.ntendon), ten_velocity=z(model.ntendon), ten_J=z(model.ntendon, nv),
+        qM=z(nv, nv), qfrc_bias=z(nv),
         qfrc_spring=z(nv), qfrc_damper=z(nv), qfrc_passive=z(nv), actuator_length=z(nu),
         actuator_velocity=z(nu), actuator_force=z(nu), qfrc_actuator=z(nv), qfrc_smooth=z(nv),
         qacc=z(nv), qacc_smooth=z(nv), contact_dist=z(ncon), contact_pos=z(ncon, 3),

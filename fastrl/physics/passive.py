@@ -1,4 +1,4 @@
-"""Passive forces: joint springs and dampers, the inertia-box fluid model and gravity
+"""Passive forces: joint and tendon springs and dampers, the inertia-box fluid model and gravity
 compensation (mj_passive)."""
 
 from __future__ import annotations
@@ -15,9 +15,10 @@ _DSBL = mujoco.mjtDisableBit
 
 
 def passive(m: Model, d: Data) -> Data:
-    """Joint springs and dampers, plus fluid forces where the model has a medium.
+    """Joint and tendon springs and dampers, plus fluid forces where the model has a medium.
 
-    Spring ``-k (q - q_spring)`` on hinge/slide joints, damping ``-b qdot`` on every dof, and
+    Spring ``-k (q - q_spring)`` on hinge/slide joints, damping ``-b qdot`` on every dof, tendon
+    springs and dampers along ``ten_J`` (``_tendon_forces``, traced only if there are tendons), and
     ``fluid`` on the bodies of ``m.body_fluid`` (traced only if there are any). Expects
     ``com_vel`` to have run.
     """
@@ -30,6 +31,8 @@ def passive(m: Model, d: Data) -> Data:
     damper = jnp.zeros_like(d.qvel)
     if not m.disableflags & _DSBL.mjDSBL_DAMPER:
         damper = -m.dof_damping * d.qvel
+    if m.ntendon:
+        spring, damper = _tendon_forces(m, d, spring, damper)
     total = spring + damper
     if m.body_fluid.any():
         total = total + fluid(m, d)
@@ -37,6 +40,21 @@ def passive(m: Model, d: Data) -> Data:
         # a joint with actuatorgravcomp takes its share through its actuators instead
         total = total + jnp.where(m.jnt_actgravcomp[m.dof_jntid].astype(bool), 0.0, gravcomp(m, d))
     return d.replace(qfrc_spring=spring, qfrc_damper=damper, qfrc_passive=total)
+
+
+def _tendon_forces(m: Model, d: Data, spring: jax.Array, damper: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Adds the tendons' springs and dampers, ``J^T f``, to the joint ones (mj_springdamper).
+
+    The spring pulls the length back into its dead band ``tendon_lengthspring = [lo, hi]``
+    (``-k (L - hi)`` above it, ``-k (L - lo)`` below, none inside); the damper is ``-b v``.
+    """
+    if not m.disableflags & _DSBL.mjDSBL_SPRING:
+        length, (lo, hi) = d.ten_length, m.tendon_lengthspring.T
+        stretch = jnp.where(length > hi, length - hi, jnp.where(length < lo, length - lo, 0.0))
+        spring = spring + d.ten_J.T @ (-m.tendon_stiffness * stretch)
+    if not m.disableflags & _DSBL.mjDSBL_DAMPER:
+        damper = damper + d.ten_J.T @ (-m.tendon_damping * d.ten_velocity)
+    return spring, damper
 
 
 def gravcomp(m: Model, d: Data) -> jax.Array:

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fastrl.physics import constraint, smooth, tree
+from fastrl.physics import constraint, equality, smooth, tree
 from fastrl.physics.collision_driver import contact_layout
 from fastrl.physics.math import matvec
 from fastrl.physics.types import Data, Model
@@ -49,15 +49,17 @@ BRACKETED_LINESEARCH_ITERATIONS = 10
 def hessian_structure(m: Model) -> tuple[tuple[int, ...], ...]:
     """Each dof's ancestors in the elimination order used to factorise the Newton Hessian.
 
-    ``H = M + J^T D J`` keeps the kinematic tree's sparsity when every contact has a static side
-    (a robot on the ground: each row's Jacobian lives on one root-to-body path), so the tree's
+    ``H = M + J^T D J`` keeps the kinematic tree's sparsity when every contact and equality has
+    a static side (a robot on the ground: each row's Jacobian lives on one root-to-body path),
+    so the tree's
     fill-free L^T D L factorisation applies, as for M. Otherwise H is factorised densely.
     """
     moving = tree.body_dof_ancestors(m).any(axis=1)
     layout = contact_layout(m)
     b1 = m.geom_bodyid[m.pair_geom1[layout]]
     b2 = m.geom_bodyid[m.pair_geom2[layout]]
-    if not np.any(moving[b1] & moving[b2]):
+    coupled = np.any(moving[b1] & moving[b2]) or equality.couples_branches(m, moving)
+    if not coupled:
         return smooth.ancestors(m)
     return tuple(tuple(range(k - 1, -1, -1)) for k in range(m.nv))
 
@@ -149,6 +151,9 @@ class _Rows(typing.NamedTuple):
     elliptic-cone contacts are blocks (``_Cones``, one per condim).
     """
 
+    eq_jac: jax.Array  # (ne, nv) equality rows
+    eq_aref: jax.Array
+    eq_D: jax.Array
     fr_dofs: np.ndarray  # (nfric,) static
     fr_aref: jax.Array
     fr_D: jax.Array
@@ -165,17 +170,21 @@ class _Rows(typing.NamedTuple):
     def j(self, a: jax.Array) -> tuple[jax.Array, ...]:
         """``J a`` of the friction-loss, limit, scalar contact rows and each cone group."""
         cones = tuple(matvec(c.jac, a) for c in self.cones)
-        return (a[self.fr_dofs], self.lim_sign * a[self.lim_dofs], self.jac @ a, *cones)
+        return (a[self.fr_dofs], self.lim_sign * a[self.lim_dofs], self.jac @ a, self.eq_jac @ a, *cones)
 
     def jar(self, a: jax.Array) -> tuple[jax.Array, ...]:
         """``J a - aref``, split as ``j``."""
-        arefs = (self.fr_aref, self.lim_aref, self.aref, *(c.aref for c in self.cones))
+        arefs = (self.fr_aref, self.lim_aref, self.aref, self.eq_aref, *(c.aref for c in self.cones))
         return tuple(x - r for x, r in zip(self.j(a), arefs, strict=True))
 
-    def jt(self, fr: jax.Array, lim: jax.Array, con: jax.Array, *cones: jax.Array) -> jax.Array:
+    def jt(
+        self, fr: jax.Array, lim: jax.Array, con: jax.Array, eq: jax.Array, *cones: jax.Array
+    ) -> jax.Array:
         """``J^T f`` for row values split as ``j``."""
         nv = self.jac.shape[-1]
         out = con @ self.jac if self.aref.size else jnp.zeros(nv, fr.dtype)
+        if self.eq_aref.size:
+            out = out + eq @ self.eq_jac
         for c, f in zip(self.cones, cones, strict=True):
             out = out + jnp.einsum("nd,ndv->v", f, c.jac)
         if self.lim_dofs.size:
@@ -202,7 +211,8 @@ class _Rows(typing.NamedTuple):
 def _rows(m: Model, d: Data) -> _Rows:
     fr = constraint.friction_dofs(m)
     dofs = constraint.limit_dofs(m)
-    nf, n = fr.size, fr.size + dofs.size
+    ne = equality.nrows(m)
+    nf, n = ne + fr.size, ne + fr.size + dofs.size
     blocks = constraint.elliptic_blocks(m)
     end = blocks[0][1] if blocks else d.efc_aref.shape[0]
     cones = []
@@ -213,13 +223,14 @@ def _rows(m: Model, d: Data) -> _Rows:
         mu = fric[:, 0] / jnp.sqrt(jnp.maximum(1e-15, m.impratio))
         cones.append(_Cones(d.efc_J[rows].reshape(nslot, dim, -1), d.efc_aref[rows].reshape(nslot, dim),
                             d.efc_D[rows].reshape(nslot, dim), mu, fric))  # fmt: skip
-    return _Rows(fr, d.efc_aref[:nf], d.efc_D[:nf], m.dof_frictionloss[fr],
+    return _Rows(d.efc_J[:ne], d.efc_aref[:ne], d.efc_D[:ne],
+                 fr, d.efc_aref[ne:nf], d.efc_D[ne:nf], m.dof_frictionloss[fr],
                  dofs, d.efc_J[np.arange(nf, n), dofs], d.efc_aref[nf:n], d.efc_D[nf:n],
                  d.efc_J[n:end], d.efc_aref[n:end], d.efc_D[n:end], tuple(cones))  # fmt: skip
 
 
 def _cost(rows: _Rows, d: Data, a: jax.Array) -> jax.Array:
-    jf, jl, jc, *je = rows.jar(a)
+    jf, jl, jc, jq, *je = rows.jar(a)
     da = a - d.qacc_smooth
     f, dd = rows.fr_loss, rows.fr_D
     friction = jnp.where(jnp.abs(dd * jf) < f, 0.5 * dd * jf**2, f * jnp.abs(jf) - 0.5 * f**2 / dd)
@@ -230,6 +241,7 @@ def _cost(rows: _Rows, d: Data, a: jax.Array) -> jax.Array:
             jnp.sum(da * matvec(d.qM, da))
             + jnp.sum(rows.lim_D * jnp.minimum(jl, 0.0) ** 2)
             + jnp.sum(rows.dd * jnp.minimum(jc, 0.0) ** 2)
+            + jnp.sum(rows.eq_D * jq**2)
         )
         + jnp.sum(friction)
         + cones
@@ -253,7 +265,7 @@ def _quadratic(rows: _Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ...]):
     ``H = M + J^T diag(D * quadratic) J`` plus each cone block's ``J^T H_cone J``; friction-loss
     and limit rows (unit vectors) add to the diagonal.
     """
-    jf, jl, jc, *je = res
+    jf, jl, jc, jq, *je = res
     quad_lim, quad = rows.lim_D * (jl < 0), rows.dd * (jc < 0)
     neg_fr, quad_fr = rows.friction_force(jf)
     cone_grads, hess = [], d.qM
@@ -262,7 +274,11 @@ def _quadratic(rows: _Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ...]):
         cone_grads.append(g)
         hj = jnp.einsum("nij,njv->niv", h, c.jac)
         hess = _add_outer(hess, c.jac.reshape(-1, c.jac.shape[-1]), hj.reshape(-1, c.jac.shape[-1]))
-    grad = matvec(d.qM, a - d.qacc_smooth) + rows.jt(neg_fr, quad_lim * jl, quad * jc, *cone_grads)
+    grad = matvec(d.qM, a - d.qacc_smooth) + rows.jt(
+        neg_fr, quad_lim * jl, quad * jc, rows.eq_D * jq, *cone_grads
+    )
+    if rows.eq_D.size:
+        hess = _add_outer(hess, rows.eq_jac * rows.eq_D[:, None], rows.eq_jac)
     if quad.size:
         hess = _add_outer(hess, rows.jac * quad[:, None], rows.jac)
     if rows.lim_dofs.size or rows.fr_dofs.size:
@@ -316,9 +332,12 @@ def _newton_step(structure, rows: _Rows, d: Data, carry):
     def slope_curve(alpha):
         """phi'(alpha) and phi''(alpha) (one-sided where a row changes zone)."""
         slope, curve = alpha * s_m_s + s_m_a, s_m_s
-        for c, jar, s in zip(rows.cones, res[3:], js[3:], strict=True):
+        for c, jar, s in zip(rows.cones, res[4:], js[4:], strict=True):
             sc, cc = c.slope_curve(jar, s, alpha)
             slope, curve = slope + sc, curve + cc
+        if rows.eq_D.size:  # always quadratic
+            slope = slope + jnp.sum(rows.eq_D * (res[3] + alpha * js[3]) * js[3])
+            curve = curve + jnp.sum(rows.eq_D * js[3] ** 2)
         for jar, s, dd in ((res[1], js[1], rows.lim_D), (res[2], js[2], rows.dd)):
             trial = jar + alpha * s
             neg = dd * (trial < 0)
@@ -358,9 +377,10 @@ def solve(m: Model, d: Data) -> Data:
     carry = (a, res, *_quadratic(rows, d, a, res))
     carry = jax.lax.fori_loop(0, m.solver_iterations, lambda _, c: _newton_step(structure, rows, d, c), carry)
     a = carry[0]
-    jf, jl, jc, *je = rows.jar(a)
+    jf, jl, jc, jq, *je = rows.jar(a)
     ff = -rows.friction_force(jf)[0]
+    fq = -rows.eq_D * jq
     fl, fc = -rows.lim_D * jnp.minimum(jl, 0.0), -rows.dd * jnp.minimum(jc, 0.0)
     fe = [-c.grad_hess(r)[0] for c, r in zip(rows.cones, je, strict=True)]
-    force = jnp.concatenate([ff, fl, fc, *(f.reshape(-1) for f in fe)])
-    return d.replace(qacc=a, efc_force=force, qfrc_constraint=rows.jt(ff, fl, fc, *fe))
+    force = jnp.concatenate([fq, ff, fl, fc, *(f.reshape(-1) for f in fe)])
+    return d.replace(qacc=a, efc_force=force, qfrc_constraint=rows.jt(ff, fl, fc, fq, *fe))

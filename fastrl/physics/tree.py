@@ -85,8 +85,14 @@ def dof_velocity_before(m: Model) -> np.ndarray:
     return out
 
 
+def joint_actuators(m: Model) -> np.ndarray:
+    """The actuators with a joint transmission (the others drive tendons)."""
+    return np.flatnonzero(m.actuator_trntype == 0)  # mjTRN_JOINT
+
+
 def actuator_moment_pattern(m: Model) -> np.ndarray:
     """(nv, nu) 0/1 matrix: ``[d, u] = 1`` iff actuator u's joint transmission drives dof d."""
     out = np.zeros((m.nv, m.nu))
-    out[m.jnt_dofadr[m.actuator_trnid], np.arange(m.nu)] = 1.0
+    joint = joint_actuators(m)
+    out[m.jnt_dofadr[m.actuator_trnid[joint]], joint] = 1.0
     return out

@@ -74,11 +74,24 @@ class Model:
       jnt_actgravcomp                          (njnt,)  1: the joint's gravcomp goes through its
                                                actuators (counted against actfrcrange)
                                                (body mass > 0, density or viscosity > 0)
-      actuator_trnid                           (nu,)    the joint each actuator drives
+      actuator_trntype, actuator_trnid         (nu,)    mjtTrn (0 joint, 3 tendon); the joint or
+                                               tendon each actuator drives
       actuator_gaintype, actuator_biastype     (nu,)    0 fixed/none, 1 affine
       actuator_ctrllimited, forcelimited       (nu,)
       jnt_actfrclimited                        (njnt,)
+      ntendon                                  tendons, MuJoCo's ids; 0 when none acts on the
+                                               dynamics (inert tendons alone are dropped)
+      tendon_adr, tendon_num                   (ntendon,) each tendon's entries in wrap_*
+      wrap_type, wrap_objid, wrap_prm          (nwrap,) mjtWrap; joint/site/geom id; joint coef,
+                                               side site of a geom, or pulley divisor
+      tendon_limited                           (ntendon,) 1 where the length is limited (limits on)
+      armature_tendons                         (ntendon_arm,) tendons with armature != 0 when
+                                               compiled (tendon.py: inertia and bias traced)
       pair_geom1, pair_geom2, pair_condim      (npair,) geom pairs that can touch (type1 <= type2)
+      eq_type, eq_obj1id, eq_obj2id, eq_objtype (neq,) equality constraints: mjtEq kind, the two
+                                               bodies/joints/sites (obj2 -1: none), mjtObj of the
+                                               objects (body or site for connect/weld)
+      eq_active0                               (neq,)   1: active at reset (Data.eq_active)
       cone                                     0 pyramidal, 1 elliptic friction cone
       solver_iterations                        static iteration count of the constraint solver
       nconmax                                  contact slots: rows exist for the nconmax deepest
@@ -103,6 +116,14 @@ class Model:
       pair_solreffriction (npair,2)                 the elliptic cone's friction solref; 0: solref
       pair_margin (npair,), pair_gap (npair,)       contact parameters, mixed as MuJoCo mixes them
       jnt_solref (njnt,2), jnt_solimp (njnt,5), jnt_margin (njnt,)   joint-limit softness
+      tendon_stiffness, tendon_damping, tendon_armature (ntendon,)
+      tendon_lengthspring (ntendon,2)               the spring's rest lengths: a dead band [lo, hi]
+      tendon_range (ntendon,2), tendon_margin (ntendon,)   length limits
+      tendon_solref_lim (ntendon,2), tendon_solimp_lim (ntendon,5)   their softness
+      tendon_frictionloss (ntendon,), tendon_solref_fri (ntendon,2), tendon_solimp_fri (ntendon,5)
+      tendon_invweight0 (ntendon,)                  MuJoCo's inverse weight of each tendon (for R)
+      eq_data (neq,11), eq_solref (neq,2), eq_solimp (neq,5)   MuJoCo's eq_data (anchors,
+                                               relpose, torquescale, polynomial) and softness
       body_invweight0 (nbody,2), dof_invweight0 (nv,)   MuJoCo's inverse weights (for R)
       impratio ()
       density (), viscosity (), wind (3,)   the medium of the fluid model (only where body_fluid)
@@ -115,6 +136,7 @@ class Model:
     njnt: int
     ngeom: int
     nsite: int
+    ntendon: int
     body_parentid: np.ndarray
     body_rootid: np.ndarray
     body_jntnum: np.ndarray
@@ -139,15 +161,28 @@ class Model:
     gravcomp_bodies: np.ndarray
     mocap_bodies: np.ndarray
     jnt_actgravcomp: np.ndarray
+    actuator_trntype: np.ndarray
     actuator_trnid: np.ndarray
     actuator_gaintype: np.ndarray
     actuator_biastype: np.ndarray
     actuator_ctrllimited: np.ndarray
     actuator_forcelimited: np.ndarray
     jnt_actfrclimited: np.ndarray
+    tendon_adr: np.ndarray
+    tendon_num: np.ndarray
+    wrap_type: np.ndarray
+    wrap_objid: np.ndarray
+    wrap_prm: np.ndarray
+    tendon_limited: np.ndarray
+    armature_tendons: np.ndarray
     pair_geom1: np.ndarray
     pair_geom2: np.ndarray
     pair_condim: np.ndarray
+    eq_type: np.ndarray
+    eq_obj1id: np.ndarray
+    eq_obj2id: np.ndarray
+    eq_objtype: np.ndarray
+    eq_active0: np.ndarray
     cone: int
     solver_iterations: int
     nconmax: int
@@ -199,6 +234,21 @@ class Model:
     jnt_solref: jax.Array
     jnt_solimp: jax.Array
     jnt_margin: jax.Array
+    tendon_stiffness: jax.Array
+    tendon_damping: jax.Array
+    tendon_armature: jax.Array
+    tendon_lengthspring: jax.Array
+    tendon_range: jax.Array
+    tendon_margin: jax.Array
+    tendon_solref_lim: jax.Array
+    tendon_solimp_lim: jax.Array
+    tendon_frictionloss: jax.Array
+    tendon_solref_fri: jax.Array
+    tendon_solimp_fri: jax.Array
+    tendon_invweight0: jax.Array
+    eq_data: jax.Array
+    eq_solref: jax.Array
+    eq_solimp: jax.Array
     body_invweight0: jax.Array
     dof_invweight0: jax.Array
     impratio: jax.Array
@@ -231,11 +281,14 @@ class Data:
                   qacc_warmstart (nv,)  the last step's acceleration, the solver's starting point
                   mocap_pos (nmocap,3)  mocap_quat (nmocap,4)  poses of the mocap bodies (set them
                   between steps; a step holds them fixed)
+                  eq_active (neq,) bool: which equality constraints act (MuJoCo's eq_active;
+                  switch them between steps)
     Kinematics:   xpos (nbody,3)  xquat (nbody,4)  xmat (nbody,3,3)  xipos (nbody,3)
                   ximat (nbody,3,3)  xanchor (njnt,3)  xaxis (njnt,3)
                   geom_xpos (ngeom,3)  geom_xmat (ngeom,3,3)  site_xpos (nsite,3)  site_xmat (nsite,3,3)
     Com-based:    subtree_com (nbody,3)  cinert (nbody,10)  cdof (nv,6)  cvel (nbody,6)
                   cdof_dot (nv,6)
+    Tendons:      ten_length (ntendon,)  ten_velocity (ntendon,)  ten_J (ntendon,nv) (dense ten_moment)
     Dynamics:     qM (nv,nv)  qfrc_bias (nv,)  qfrc_spring (nv,)  qfrc_damper (nv,)
                   qfrc_passive (nv,)  actuator_length (nu,)  actuator_velocity (nu,)
                   actuator_force (nu,)  qfrc_actuator (nv,)  qfrc_smooth (nv,)  qacc (nv,)
@@ -247,7 +300,8 @@ class Data:
                   nconmax deepest, see constraint.py); only slots have constraint rows
     Constraints:  efc_J (nefc,nv)  efc_pos (nefc,)  efc_aref (nefc,)  efc_D (nefc,) (= 1/R; 0 on
                   rows beyond their margin)  efc_force (nefc,)  qfrc_constraint (nv,); rows:
-                  one per friction-loss dof, one per limited joint, then the contact slots' rows
+                  the equality constraints' (3 connect, 6 weld, 1 joint), one per friction-loss
+                  dof, one per limited joint, then the contact slots' rows
     Health:       diverged ()  True once the state has been non-finite or beyond bounds
     """
 
@@ -259,6 +313,7 @@ class Data:
     qacc_warmstart: jax.Array
     mocap_pos: jax.Array
     mocap_quat: jax.Array
+    eq_active: jax.Array
     xpos: jax.Array
     xquat: jax.Array
     xmat: jax.Array
@@ -275,6 +330,9 @@ class Data:
     cdof: jax.Array
     cvel: jax.Array
     cdof_dot: jax.Array
+    ten_length: jax.Array
+    ten_velocity: jax.Array
+    ten_J: jax.Array
     qM: jax.Array
     qfrc_bias: jax.Array
     qfrc_spring: jax.Array
