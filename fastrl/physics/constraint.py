@@ -58,6 +58,21 @@ def friction_dofs(m: Model) -> np.ndarray:
     return np.asarray(m.friction_dofs, np.int64)
 
 
+def friction_tendons(m: Model) -> np.ndarray:
+    """(nfric_ten,) the tendon of every tendon friction-loss row (after the dofs' rows)."""
+    return np.asarray(m.friction_tendons, np.int64)
+
+
+def limited_tendons(m: Model) -> np.ndarray:
+    """(nlim_ten,) the tendon of every tendon-limit row (after the joints' limit rows)."""
+    return np.flatnonzero(np.asarray(m.tendon_limited).astype(bool))
+
+
+def nfriction(m: Model) -> int:
+    """Friction-loss rows: dofs', then tendons'."""
+    return friction_dofs(m).size + friction_tendons(m).size
+
+
 def limited_joints(m: Model) -> np.ndarray:
     """Indices of hinge/slide joints with active limits."""
     scalar = (m.jnt_type == JointType.HINGE) | (m.jnt_type == JointType.SLIDE)
@@ -143,7 +158,7 @@ def contact_efc_address(m: Model) -> np.ndarray:
 
 def first_contact_row(m: Model) -> int:
     """Rows before the contacts': equality, friction-loss and limit rows."""
-    return equality.nrows(m) + friction_dofs(m).size + limited_joints(m).size
+    return equality.nrows(m) + nfriction(m) + limited_joints(m).size + limited_tendons(m).size
 
 
 def sizes(m: Model) -> tuple[int, int]:
@@ -306,6 +321,12 @@ def make_constraint(m: Model, d: Data) -> Data:
         jac = jnp.eye(m.nv, dtype=dtype)[fric]
         add(jac, zero, zero, m.dof_solref[fric], m.dof_solimp[fric], m.dof_invweight0[fric], always=True)
 
+    ften = friction_tendons(m)
+    if ften.size:
+        zero = jnp.zeros(ften.size, dtype)
+        add(d.ten_J[ften], zero, zero, m.tendon_solref_fri[ften], m.tendon_solimp_fri[ften],
+            m.tendon_invweight0[ften], always=True)  # fmt: skip
+
     lim = limited_joints(m)
     if lim.size:
         # MuJoCo's row for the lower end is (J = +1, pos = q - lo), for the upper (-1, hi - q).
@@ -317,6 +338,16 @@ def make_constraint(m: Model, d: Data) -> Data:
         jac = jnp.eye(m.nv, dtype=dtype)[dof] * sign[:, None]  # (nlim, nv)
         pos = jnp.where(lower, q - lo, hi - q)
         add(jac, pos, m.jnt_margin[lim], m.jnt_solref[lim], m.jnt_solimp[lim], m.dof_invweight0[dof])
+
+    lten = limited_tendons(m)
+    if lten.size:  # as joint limits, with the tendon's length and Jacobian
+        length = d.ten_length[lten]
+        lo, hi = m.tendon_range[lten, 0], m.tendon_range[lten, 1]
+        lower = length - lo <= hi - length
+        sign = jnp.where(lower, 1.0, -1.0).astype(dtype)
+        pos = jnp.where(lower, length - lo, hi - length)
+        add(d.ten_J[lten] * sign[:, None], pos, m.tendon_margin[lten], m.tendon_solref_lim[lten],
+            m.tendon_solimp_lim[lten], m.tendon_invweight0[lten])  # fmt: skip
 
     layout = contact_layout(m)
     ids = []

@@ -1,6 +1,7 @@
-"""Equality constraints (connect, weld, joint): their rows, as MuJoCo's mj_instantiateEquality.
+"""Equality constraints (connect, weld, joint, tendon): their rows, as MuJoCo's
+mj_instantiateEquality.
 
-Every equality owns a fixed block of rows (connect 3, weld 6, joint 1), in model order; one that
+Every equality owns a fixed block of rows (connect 3, weld 6, joint and tendon 1), in model order; one that
 is switched off (``Data.eq_active``) keeps its rows with zero weight. Each kind is computed for all
 of its constraints at once. ``rows`` gives what ``constraint.make_constraint`` turns into soft rows:
 the Jacobian, the violation, the Jacobian's rate ``Jdot v`` (MuJoCo >= 3.12 removes it from the
@@ -20,7 +21,7 @@ from fastrl.physics import math, tree
 from fastrl.physics.types import Data, JointType, Model
 
 EQ = mujoco.mjtEq
-ROWS = {int(EQ.mjEQ_CONNECT): 3, int(EQ.mjEQ_WELD): 6, int(EQ.mjEQ_JOINT): 1}
+ROWS = {int(EQ.mjEQ_CONNECT): 3, int(EQ.mjEQ_WELD): 6, int(EQ.mjEQ_JOINT): 1, int(EQ.mjEQ_TENDON): 1}
 
 
 def row_counts(m: Model) -> np.ndarray:
@@ -34,12 +35,14 @@ def nrows(m: Model) -> int:
 
 def couples_branches(m: Model, moving: np.ndarray) -> bool:
     """Whether a row may span two moving branches (then the Newton Hessian is factorised
-    densely): a connect/weld with both bodies moving, or a joint coupling of two joints."""
+    densely): a connect/weld with both bodies moving, a coupling of two joints, or any tendon
+    coupling (a tendon spans branches)."""
     if not m.eq_type.size:
         return False
-    joint = m.eq_type == int(EQ.mjEQ_JOINT)
+    joint = (m.eq_type == int(EQ.mjEQ_JOINT)) | (m.eq_type == int(EQ.mjEQ_TENDON))
     b1, b2 = _bodies(m, np.flatnonzero(~joint))
-    return bool(np.any(moving[b1] & moving[b2]) or np.any(joint & (m.eq_obj2id >= 0)))
+    tendon = m.eq_type == int(EQ.mjEQ_TENDON)
+    return bool(np.any(moving[b1] & moving[b2]) or np.any(joint & (m.eq_obj2id >= 0)) or tendon.any())
 
 
 class Rows(typing.NamedTuple):
@@ -210,25 +213,44 @@ def _weld(m: Model, d: Data, idx: np.ndarray):
 def _joint(m: Model, d: Data, idx: np.ndarray):
     """Joint couplings ``q1 - q1_0 = data[0] + sum_k data[k] (q2 - q2_0)^k`` (k = 1..4); a
     constraint with no second joint fixes the first at ``q1_0 + data[0]``."""
-    data = m.eq_data[idx]
     j1, j2 = m.eq_obj1id[idx], m.eq_obj2id[idx]
     two = j2 >= 0
     j2s = np.where(two, j2, 0)
-    q1 = d.qpos[m.jnt_qposadr[j1]] - m.qpos0[m.jnt_qposadr[j1]]
-    dif = jnp.where(jnp.asarray(two), d.qpos[m.jnt_qposadr[j2s]] - m.qpos0[m.jnt_qposadr[j2s]], 0.0)
+    eye = jnp.eye(m.nv, dtype=d.qpos.dtype)
+    value = lambda j: d.qpos[m.jnt_qposadr[j]] - m.qpos0[m.jnt_qposadr[j]]  # noqa: E731
+    return _coupling(m, idx, value(j1), value(j2s), eye[m.jnt_dofadr[j1]], eye[m.jnt_dofadr[j2s]],
+                     m.dof_invweight0[m.jnt_dofadr[j1]], m.dof_invweight0[m.jnt_dofadr[j2s]])  # fmt: skip
+
+
+def _tendon(m: Model, d: Data, idx: np.ndarray):
+    """Tendon couplings: as joint couplings, on lengths from ``tendon_length0``."""
+    t1, t2 = m.eq_obj1id[idx], m.eq_obj2id[idx]
+    t2s = np.where(t2 >= 0, t2, 0)
+    value = lambda t: d.ten_length[t] - m.tendon_length0[t]  # noqa: E731
+    return _coupling(m, idx, value(t1), value(t2s), d.ten_J[t1], d.ten_J[t2s],
+                     m.tendon_invweight0[t1], m.tendon_invweight0[t2s])  # fmt: skip
+
+
+def _coupling(m: Model, idx: np.ndarray, q1, q2, jac1, jac2, inv1, inv2):
+    """Rows of ``q1 = data[0] + sum_k data[k] q2^k`` (k = 1..4), or ``q1 = data[0]`` where the
+    constraint has no second object, given both values, Jacobians and inverse weights."""
+    data = m.eq_data[idx]
+    two = jnp.asarray(m.eq_obj2id[idx] >= 0)
+    dif = jnp.where(two, q2, 0.0)
     poly = data[:, 1] * dif + data[:, 2] * dif**2 + data[:, 3] * dif**3 + data[:, 4] * dif**4
     deriv = data[:, 1] + 2 * data[:, 2] * dif + 3 * data[:, 3] * dif**2 + 4 * data[:, 4] * dif**3
-    eye = jnp.eye(m.nv, dtype=d.qpos.dtype)
-    jac = eye[m.jnt_dofadr[j1]] - jnp.where(
-        jnp.asarray(two)[:, None], deriv[:, None] * eye[m.jnt_dofadr[j2s]], 0.0
-    )
-    pos = q1 - data[:, 0] - jnp.where(jnp.asarray(two), poly, 0.0)
-    inv = m.dof_invweight0
-    diag = inv[m.jnt_dofadr[j1]] + jnp.where(jnp.asarray(two), inv[m.jnt_dofadr[j2s]], 0.0)
+    jac = jac1 - jnp.where(two[:, None], deriv[:, None] * jac2, 0.0)
+    pos = q1 - data[:, 0] - jnp.where(two, poly, 0.0)
+    diag = inv1 + jnp.where(two, inv2, 0.0)
     return jac[:, None], pos[:, None], jnp.zeros_like(pos)[:, None], diag[:, None]
 
 
-_KINDS = {int(EQ.mjEQ_CONNECT): _connect, int(EQ.mjEQ_WELD): _weld, int(EQ.mjEQ_JOINT): _joint}
+_KINDS = {
+    int(EQ.mjEQ_CONNECT): _connect,
+    int(EQ.mjEQ_WELD): _weld,
+    int(EQ.mjEQ_JOINT): _joint,
+    int(EQ.mjEQ_TENDON): _tendon,
+}
 
 
 def rows(m: Model, d: Data) -> Rows:

@@ -27,8 +27,8 @@ def summary_lines(m: Model) -> list[str]:
         for a, b in zip(m.pair_geom1, m.pair_geom2, strict=True)
     )
     ncon, nefc = constraint.sizes(m)
-    nlim = constraint.limited_joints(m).size
-    nfric = constraint.friction_dofs(m).size
+    nlim = constraint.limited_joints(m).size + constraint.limited_tendons(m).size
+    nfric = constraint.nfriction(m)
     condims = ", ".join(f"{n} x {dim}" for dim, _, n in constraint.contact_groups(m)) or "none"
     all_pairs = m.ngeom * (m.ngeom - 1) // 2
     eq_kinds = collections.Counter(mujoco.mjtEq(t).name[5:].lower() for t in m.eq_type)
@@ -45,8 +45,10 @@ def summary_lines(m: Model) -> list[str]:
         f"contact pairs   {m.npair} kept of {all_pairs} geom pairs ({fmt(pairs)})",
         f"contacts        {ncon} candidates (fixed count, active when within margin); "
         f"rows for the {constraint.contact_slots(m)} deepest (nconmax {m.nconmax})",
-        f"limited joints  {nlim}",
-        f"friction loss   {constraint.friction_dofs(m).size} dofs (one row each)",
+        f"limits          {constraint.limited_joints(m).size} joints, {constraint.limited_tendons(m).size} tendons "
+        "(one row each)",
+        f"friction loss   {constraint.friction_dofs(m).size} dofs, {constraint.friction_tendons(m).size} tendons "
+        "(one row each)",
         f"mocap bodies    {m.mocap_bodies.size} (posed by Data.mocap_pos/mocap_quat)",
         f"equalities      {m.eq_type.size} ({kinds}; {off} off at reset), {ne} rows",
         f"gravity comp.   {m.gravcomp_bodies.size} bodies",

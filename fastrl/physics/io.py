@@ -122,6 +122,11 @@ def _tendon_roles(m: mujoco.MjModel) -> dict[str, np.ndarray]:
     actuated = np.zeros(m.ntendon, bool)
     by_tendon = m.actuator_trntype == int(mujoco.mjtTrn.mjTRN_TENDON)
     actuated[m.actuator_trnid[by_tendon, 0]] = True
+    coupled = np.zeros(m.ntendon, bool)
+    if equalities_enabled(m):
+        by_eq = m.eq_type == int(mujoco.mjtEq.mjEQ_TENDON)
+        for ids in (m.eq_obj1id[by_eq], m.eq_obj2id[by_eq]):
+            coupled[ids[ids >= 0]] = True
     nonlinear_spring = (m.tendon_springyield != 0) | np.any(m.tendon_stiffnesspoly != 0, axis=-1)
     return {
         "limited": m.tendon_limited.astype(bool) & limits_enabled(m),
@@ -133,13 +138,17 @@ def _tendon_roles(m: mujoco.MjModel) -> dict[str, np.ndarray]:
         "armature": m.tendon_armature != 0,
         "an actuator": actuated,
         "actuatorfrcrange": m.tendon_actfrclimited.astype(bool) & actuated,
+        "an equality constraint": coupled,
+        "a range narrower than twice its margin (both limits active)": m.tendon_limited.astype(bool)
+        & limits_enabled(m)
+        & (m.tendon_range[:, 1] - m.tendon_range[:, 0] < 2 * m.tendon_margin),
     }
 
 
 # What fastrl does not simulate yet about a tendon (the rest of _tendon_roles it does).
 _TENDON_REFUSED = (
-    "limited", "nonlinear stiffness (stiffnesspoly, springyield)", "nonlinear damping (dampingpoly)",
-    "frictionloss", "actuatorfrcrange",
+    "nonlinear stiffness (stiffnesspoly, springyield)", "nonlinear damping (dampingpoly)",
+    "actuatorfrcrange", "a range narrower than twice its margin (both limits active)",
 )  # fmt: skip
 
 
@@ -176,7 +185,13 @@ def _tendon_problems(m: mujoco.MjModel) -> list[str]:
 
 
 _EQ_KINDS = tuple(
-    int(k) for k in (mujoco.mjtEq.mjEQ_CONNECT, mujoco.mjtEq.mjEQ_WELD, mujoco.mjtEq.mjEQ_JOINT)
+    int(k)
+    for k in (
+        mujoco.mjtEq.mjEQ_CONNECT,
+        mujoco.mjtEq.mjEQ_WELD,
+        mujoco.mjtEq.mjEQ_JOINT,
+        mujoco.mjtEq.mjEQ_TENDON,
+    )
 )
 
 
@@ -417,6 +432,7 @@ def model_from_mujoco(
         wrap_type=i32(m.wrap_type[wraps]), wrap_objid=i32(m.wrap_objid[wraps]),
         wrap_prm=np.asarray(m.wrap_prm[wraps], np.float64).copy(), tendon_limited=i32(tendon_limited),
         armature_tendons=i32(np.flatnonzero(m.tendon_armature[tens] != 0)),
+        friction_tendons=i32(np.flatnonzero(m.tendon_frictionloss[tens] > 0) if frictionloss_enabled(m) else []),
         pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
@@ -449,7 +465,7 @@ def model_from_mujoco(
         tendon_solref_lim=f(m.tendon_solref_lim[tens]), tendon_solimp_lim=f(m.tendon_solimp_lim[tens]),
         tendon_frictionloss=f(m.tendon_frictionloss[tens]),
         tendon_solref_fri=f(m.tendon_solref_fri[tens]), tendon_solimp_fri=f(m.tendon_solimp_fri[tens]),
-        tendon_invweight0=f(m.tendon_invweight0[tens]),
+        tendon_invweight0=f(m.tendon_invweight0[tens]), tendon_length0=f(m.tendon_length0[tens]),
         eq_data=f(m.eq_data[eqs]), eq_solref=f(m.eq_solref[eqs]), eq_solimp=f(m.eq_solimp[eqs]),
         body_invweight0=f(m.body_invweight0), dof_invweight0=f(m.dof_invweight0),
         impratio=f(m.opt.impratio),

@@ -59,6 +59,8 @@ def hessian_structure(m: Model) -> tuple[tuple[int, ...], ...]:
     b1 = m.geom_bodyid[m.pair_geom1[layout]]
     b2 = m.geom_bodyid[m.pair_geom2[layout]]
     coupled = np.any(moving[b1] & moving[b2]) or equality.couples_branches(m, moving)
+    # a tendon's row may span branches too (its Jacobian reaches every joint it crosses)
+    coupled = coupled or constraint.friction_tendons(m).size or constraint.limited_tendons(m).size
     if not coupled:
         return smooth.ancestors(m)
     return tuple(tuple(range(k - 1, -1, -1)) for k in range(m.nv))
@@ -154,8 +156,9 @@ class _Rows(typing.NamedTuple):
     eq_jac: jax.Array  # (ne, nv) equality rows
     eq_aref: jax.Array
     eq_D: jax.Array
-    fr_dofs: np.ndarray  # (nfric,) static
-    fr_aref: jax.Array
+    fr_dofs: np.ndarray  # (nfric_dof,) static: the dof friction rows, unit vectors
+    tf_jac: jax.Array  # (nfric_ten, nv): the tendon friction rows, after the dofs'
+    fr_aref: jax.Array  # (nfric,) all friction-loss rows, dofs' then tendons'
     fr_D: jax.Array
     fr_loss: jax.Array  # (nfric,) the friction loss: the most force a row can give
     lim_dofs: np.ndarray  # (nlim,) static
@@ -170,7 +173,10 @@ class _Rows(typing.NamedTuple):
     def j(self, a: jax.Array) -> tuple[jax.Array, ...]:
         """``J a`` of the friction-loss, limit, scalar contact rows and each cone group."""
         cones = tuple(matvec(c.jac, a) for c in self.cones)
-        return (a[self.fr_dofs], self.lim_sign * a[self.lim_dofs], self.jac @ a, self.eq_jac @ a, *cones)
+        fric = (
+            jnp.concatenate([a[self.fr_dofs], self.tf_jac @ a]) if self.tf_jac.shape[0] else a[self.fr_dofs]
+        )
+        return (fric, self.lim_sign * a[self.lim_dofs], self.jac @ a, self.eq_jac @ a, *cones)
 
     def jar(self, a: jax.Array) -> tuple[jax.Array, ...]:
         """``J a - aref``, split as ``j``."""
@@ -190,7 +196,9 @@ class _Rows(typing.NamedTuple):
         if self.lim_dofs.size:
             out = out.at[self.lim_dofs].add(self.lim_sign * lim)
         if self.fr_dofs.size:
-            out = out.at[self.fr_dofs].add(fr)
+            out = out.at[self.fr_dofs].add(fr[: self.fr_dofs.size])
+        if self.tf_jac.shape[0]:
+            out = out + fr[self.fr_dofs.size :] @ self.tf_jac
         return out
 
     def friction_force(self, jf: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -205,14 +213,15 @@ class _Rows(typing.NamedTuple):
 
     def piecewise_linear(self) -> bool:
         """Whether the line cost has non-quadratic pieces (friction loss, cones)."""
-        return bool(self.fr_dofs.size or self.cones)
+        return bool(self.fr_aref.size or self.cones)
 
 
 def _rows(m: Model, d: Data) -> _Rows:
     fr = constraint.friction_dofs(m)
     dofs = constraint.limit_dofs(m)
     ne = equality.nrows(m)
-    nf, n = ne + fr.size, ne + fr.size + dofs.size
+    nf = ne + constraint.nfriction(m)
+    n = nf + dofs.size
     blocks = constraint.elliptic_blocks(m)
     end = blocks[0][1] if blocks else d.efc_aref.shape[0]
     cones = []
@@ -223,8 +232,10 @@ def _rows(m: Model, d: Data) -> _Rows:
         mu = fric[:, 0] / jnp.sqrt(jnp.maximum(1e-15, m.impratio))
         cones.append(_Cones(d.efc_J[rows].reshape(nslot, dim, -1), d.efc_aref[rows].reshape(nslot, dim),
                             d.efc_D[rows].reshape(nslot, dim), mu, fric))  # fmt: skip
+    ft = constraint.friction_tendons(m)
+    loss = jnp.concatenate([m.dof_frictionloss[fr], m.tendon_frictionloss[ft]])
     return _Rows(d.efc_J[:ne], d.efc_aref[:ne], d.efc_D[:ne],
-                 fr, d.efc_aref[ne:nf], d.efc_D[ne:nf], m.dof_frictionloss[fr],
+                 fr, d.efc_J[ne + fr.size : nf], d.efc_aref[ne:nf], d.efc_D[ne:nf], loss,
                  dofs, d.efc_J[np.arange(nf, n), dofs], d.efc_aref[nf:n], d.efc_D[nf:n],
                  d.efc_J[n:end], d.efc_aref[n:end], d.efc_D[n:end], tuple(cones))  # fmt: skip
 
@@ -284,8 +295,11 @@ def _quadratic(rows: _Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ...]):
     if rows.lim_dofs.size or rows.fr_dofs.size:
         nv = d.qM.shape[-1]
         diag = jnp.zeros(nv, hess.dtype).at[rows.lim_dofs].add(quad_lim)
-        diag = diag.at[rows.fr_dofs].add(rows.fr_D * quad_fr)
+        diag = diag.at[rows.fr_dofs].add((rows.fr_D * quad_fr)[: rows.fr_dofs.size])
         hess = hess + jnp.diag(diag)
+    if rows.tf_jac.shape[0]:
+        weight = (rows.fr_D * quad_fr)[rows.fr_dofs.size :]
+        hess = _add_outer(hess, rows.tf_jac * weight[:, None], rows.tf_jac)
     return grad, hess
 
 
@@ -343,7 +357,7 @@ def _newton_step(structure, rows: _Rows, d: Data, carry):
             neg = dd * (trial < 0)
             slope = slope + jnp.sum(neg * trial * s)
             curve = curve + jnp.sum(neg * s * s)
-        if rows.fr_dofs.size:
+        if rows.fr_aref.size:
             neg_fr, quad_fr = rows.friction_force(res[0] + alpha * js[0])
             slope = slope + jnp.sum(neg_fr * js[0])
             curve = curve + jnp.sum(rows.fr_D * quad_fr * js[0] ** 2)

@@ -87,6 +87,7 @@ class Model:
       tendon_limited                           (ntendon,) 1 where the length is limited (limits on)
       armature_tendons                         (ntendon_arm,) tendons with armature != 0 when
                                                compiled (tendon.py: inertia and bias traced)
+      friction_tendons                         (nfric_ten,) tendons with a friction-loss row
       pair_geom1, pair_geom2, pair_condim      (npair,) geom pairs that can touch (type1 <= type2)
       eq_type, eq_obj1id, eq_obj2id, eq_objtype (neq,) equality constraints: mjtEq kind, the two
                                                bodies/joints/sites (obj2 -1: none), mjtObj of the
@@ -122,6 +123,7 @@ class Model:
       tendon_solref_lim (ntendon,2), tendon_solimp_lim (ntendon,5)   their softness
       tendon_frictionloss (ntendon,), tendon_solref_fri (ntendon,2), tendon_solimp_fri (ntendon,5)
       tendon_invweight0 (ntendon,)                  MuJoCo's inverse weight of each tendon (for R)
+      tendon_length0 (ntendon,)                     tendon lengths at qpos0 (tendon equality reference)
       eq_data (neq,11), eq_solref (neq,2), eq_solimp (neq,5)   MuJoCo's eq_data (anchors,
                                                relpose, torquescale, polynomial) and softness
       body_invweight0 (nbody,2), dof_invweight0 (nv,)   MuJoCo's inverse weights (for R)
@@ -175,6 +177,7 @@ class Model:
     wrap_prm: np.ndarray
     tendon_limited: np.ndarray
     armature_tendons: np.ndarray
+    friction_tendons: np.ndarray
     pair_geom1: np.ndarray
     pair_geom2: np.ndarray
     pair_condim: np.ndarray
@@ -246,6 +249,7 @@ class Model:
     tendon_solref_fri: jax.Array
     tendon_solimp_fri: jax.Array
     tendon_invweight0: jax.Array
+    tendon_length0: jax.Array
     eq_data: jax.Array
     eq_solref: jax.Array
     eq_solimp: jax.Array

@@ -183,9 +183,8 @@ def test_inert_tendons_are_ignored(shape):
 @pytest.mark.parametrize(
     "shape, attrs, actuator, word",
     [
-        (FIXED, ' range="-1 1"', "", "limited"),
-        (FIXED, ' frictionloss="1"', "", "frictionloss"),
-        (SPATIAL, ' limited="true" range="0 1"', "", "limited"),
+        (FIXED, ' range="-1 -0.99" margin="0.1"', "", "narrower than twice its margin"),
+        (SPATIAL, ' limited="true" range="0 0.01" margin="0.1"', "", "narrower than twice its margin"),
     ],
 )
 def test_active_tendons_raise_naming_the_tendon(shape, attrs, actuator, word):

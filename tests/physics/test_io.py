@@ -41,8 +41,11 @@ def test_public_api_shapes():
             ["limits on a free/ball joint", "'bj'"],
         ),
         (
-            _xml(extra='<tendon><fixed name="t" range="-1 1"><joint joint="j" coef="1"/></fixed></tendon>'),
-            ["tendon 't'", "limited"],
+            _xml(
+                extra='<tendon><fixed name="t" range="-1 -0.99" margin="0.1"><joint joint="j" coef="1"/>'
+                "</fixed></tendon>"
+            ),
+            ["tendon 't'", "narrower than twice its margin"],
         ),
         (
             _xml(extra='<actuator><general name="mus" joint="j" dyntype="filter" dynprm="0.1"/></actuator>'),

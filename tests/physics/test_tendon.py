@@ -280,7 +280,8 @@ def test_info_counts_tendons():
 
 
 @pytest.mark.parametrize(
-    "attrs, word", [(' limited="true" range="0 1"', "limited"), (' frictionloss="1"', "frictionloss")]
+    "attrs, word",
+    [(' limited="true" range="0.3 0.305" margin="0.01"', "narrower than twice its margin")],
 )
 def test_unsimulated_tendon_features_raise_naming_the_tendon(attrs, word):
     xml = ARM.replace('<spatial name="over_cyl"', f'<spatial name="over_cyl"{attrs}')
@@ -295,3 +296,79 @@ def test_armature_on_a_wrapping_tendon_is_refused():
     mj.tendon_armature[0] = 0.1
     with pytest.raises(physics.UnsupportedFeatureError, match="armature on a tendon wrapping a geom"):
         physics.model_from_mujoco(mj)
+
+
+# Tendon constraint rows: a fixed tendon coupling two trees with limits and friction loss, a
+# spatial cable through sites with limits and friction loss, and a tendon equality (a mimic joint
+# driven by the coupling's length). The geoms do not collide: this model is about the rows.
+ROWS = """
+<mujoco><option timestep="0.002"/>
+  <default><geom contype="0" conaffinity="0"/></default>
+  <worldbody>
+    <body pos="0 0 1">
+      <joint name="a" type="hinge" axis="0 1 0" damping="0.02"/>
+      <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02"/>
+      <site name="s1" pos="0.1 0 0.02"/>
+      <body pos="0.3 0 0">
+        <joint name="b" type="hinge" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02"/>
+        <site name="s2" pos="0.2 0 0.02"/>
+      </body>
+    </body>
+    <body pos="1 0 1">
+      <joint name="c" type="hinge" axis="1 0 0"/>
+      <geom type="capsule" fromto="0 0 0 0 0.3 0" size="0.02"/>
+    </body>
+    <site name="s0" pos="-0.1 0 1.05"/>
+  </worldbody>
+  <tendon>
+    <fixed name="couple" limited="true" range="-0.3 0.4" frictionloss="0.2" margin="0.01">
+      <joint joint="a" coef="1"/><joint joint="c" coef="-0.5"/></fixed>
+    <spatial name="cable" limited="true" range="0.2 0.52" frictionloss="0.05" solreflimit="0.01 1">
+      <site site="s0"/><site site="s1"/><site site="s2"/></spatial>
+    <fixed name="mimic"><joint joint="b" coef="1"/></fixed>
+  </tendon>
+  <equality><tendon tendon1="mimic" tendon2="couple" polycoef="0.05 0.8 0.1 0 0"/></equality>
+  <actuator><motor joint="a"/><motor tendon="cable" gear="3"/></actuator>
+</mujoco>
+"""
+
+
+def test_tendon_limit_friction_and_equality_rows_match_mujoco(x64):
+    mj = mujoco.MjModel.from_xml_string(ROWS)
+    mj.opt.tolerance = 1e-14  # MuJoCo's solver converged: both find the same minimiser
+    m = physics.model_from_mujoco(mj)
+    md = mujoco.MjData(mj)
+    forward = jax.jit(physics.forward)
+    t = mujoco.mjtConstraint
+    kinds = set()
+    for seed in range(6):
+        qpos, qvel, ctrl = random_state(mj, seed, qpos_scale=0.6)
+        md.qpos[:], md.qvel[:], md.ctrl[:] = qpos, qvel, ctrl
+        mujoco.mj_forward(mj, md)
+        d = forward(m, physics.make_data(m, qpos=qpos, qvel=qvel, ctrl=ctrl))
+        # MuJoCo's rows of each kind, in order, against ours with weight (inactive limits have none)
+        ours_rows = np.flatnonzero(np.asarray(d.efc_D) > 0)[: md.nefc]
+        mj_j = md.efc_J.reshape(md.nefc, mj.nv)
+        for i, o in enumerate(ours_rows):
+            kinds.add(int(md.efc_type[i]))
+            np.testing.assert_allclose(d.efc_J[o], mj_j[i], atol=1e-12)
+            np.testing.assert_allclose(d.efc_pos[o], md.efc_pos[i], atol=1e-12)
+            np.testing.assert_allclose(d.efc_aref[o], md.efc_aref[i], rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(d.efc_D[o], 1 / md.efc_R[i], rtol=1e-9)
+            np.testing.assert_allclose(d.efc_force[o], md.efc_force[i], rtol=1e-6, atol=1e-6)
+        scale = np.abs(md.qacc).max()
+        np.testing.assert_allclose(d.qacc, md.qacc, atol=1e-6 * scale)
+    assert {int(t.mjCNSTR_EQUALITY), int(t.mjCNSTR_FRICTION_TENDON), int(t.mjCNSTR_LIMIT_TENDON)} <= kinds
+    # and over 1 s of random controls
+    qpos, qvel, _ = random_state(mj, 5, qpos_scale=0.3)
+    md.qpos[:], md.qvel[:] = qpos, qvel
+    d = physics.make_data(m, qpos=qpos, qvel=qvel)
+    step = jax.jit(physics.step)
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        u = rng.uniform(-1, 1, mj.nu)
+        md.ctrl[:] = u
+        mujoco.mj_step(mj, md)
+        d = step(m, d, u)
+    np.testing.assert_allclose(d.qpos, md.qpos, atol=1e-6)
