@@ -45,10 +45,10 @@ def summary_lines(m: Model) -> list[str]:
         f"contact pairs   {m.npair} kept of {all_pairs} geom pairs ({fmt(pairs)})",
         f"contacts        {ncon} candidates (fixed count, active when within margin); "
         f"rows for the {constraint.contact_slots(m)} deepest (nconmax {m.nconmax})",
-        f"limits          {constraint.limited_joints(m).size} joints, {constraint.limited_tendons(m).size} tendons "
-        "(one row each)",
-        f"friction loss   {constraint.friction_dofs(m).size} dofs, {constraint.friction_tendons(m).size} tendons "
-        "(one row each)",
+        f"limits          {constraint.limited_joints(m).size} joints, "
+        f"{constraint.limited_tendons(m).size} tendons (one row each)",
+        f"friction loss   {constraint.friction_dofs(m).size} dofs, "
+        f"{constraint.friction_tendons(m).size} tendons (one row each)",
         f"mocap bodies    {m.mocap_bodies.size} (posed by Data.mocap_pos/mocap_quat)",
         f"equalities      {m.eq_type.size} ({kinds}; {off} off at reset), {ne} rows",
         f"gravity comp.   {m.gravcomp_bodies.size} bodies",

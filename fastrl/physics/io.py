@@ -432,7 +432,9 @@ def model_from_mujoco(
         wrap_type=i32(m.wrap_type[wraps]), wrap_objid=i32(m.wrap_objid[wraps]),
         wrap_prm=np.asarray(m.wrap_prm[wraps], np.float64).copy(), tendon_limited=i32(tendon_limited),
         armature_tendons=i32(np.flatnonzero(m.tendon_armature[tens] != 0)),
-        friction_tendons=i32(np.flatnonzero(m.tendon_frictionloss[tens] > 0) if frictionloss_enabled(m) else []),
+        friction_tendons=i32(
+            np.flatnonzero(m.tendon_frictionloss[tens] > 0) if frictionloss_enabled(m) else []
+        ),
         pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
