@@ -12,8 +12,9 @@ per core, as ``python -m fastrl.train`` runs PPO), in a child process started wi
 ``XLA_FLAGS=--xla_force_host_platform_device_count=2``. Peers run from
 ``.venv-peers`` (``bash experiments/peers/setup_peers.sh``): EnvPool ``Ant-v4`` with 2 threads and
 Brax's ``ant`` with its mjx, generalized, spring and positional backends at their own defaults.
-fastrl runs with the XLA:CPU flags ``import fastrl`` sets (``fastrl/xla_flags.py``); Brax with the
-user's ``XLA_FLAGS`` (its own defaults). Writes ``experiments/results/contacts_throughput.{md,json,png}``.
+fastrl runs with the XLA:CPU flags of ``fastrl.use_recommended_xla_flags()`` (``fastrl/xla_flags.py``);
+Brax with the user's ``XLA_FLAGS`` (its own defaults). Writes
+``experiments/results/contacts_throughput.{md,json,png}``.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import fastrl
 from fastrl import envs, physics
 from fastrl.xla_flags import peer_environ
 
@@ -199,4 +201,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     main()

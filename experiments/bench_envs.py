@@ -20,7 +20,7 @@
 
 The 2-device child reports each row on stderr as it finishes (the whole run takes 45+ min).
 
-fastrl runs with the XLA:CPU flags ``import fastrl`` sets (``fastrl/xla_flags.py``).
+fastrl runs with the XLA:CPU flags of ``fastrl.use_recommended_xla_flags()`` (``fastrl/xla_flags.py``).
 Writes ``experiments/results/env_throughput.{json,md}`` (``--name`` another stem, e.g. for a run
 of one env).
 """
@@ -39,6 +39,7 @@ import gymnasium
 import jax
 import jax.numpy as jnp
 
+import fastrl
 from fastrl import envs
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -221,4 +222,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     main()

@@ -25,6 +25,7 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
+import fastrl
 from fastrl import physics
 from fastrl.physics import actuation, passive, smooth
 
@@ -182,4 +183,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     main()

@@ -39,9 +39,12 @@ def worker(overrides: list[str], run_dir: str) -> None:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
+    import fastrl
     from fastrl import runner
     from fastrl.config import RunConfig
     from fastrl.train import CONF_DIR
+
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
         cfg = compose("train", overrides=[*overrides, f"run_dir={run_dir}"])

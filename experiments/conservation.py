@@ -61,6 +61,7 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
+import fastrl
 from fastrl import physics
 from fastrl.physics import math
 
@@ -507,4 +508,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     main()

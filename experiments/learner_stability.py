@@ -48,6 +48,7 @@ import jax
 import numpy as np
 from hydra import compose, initialize_config_dir
 
+import fastrl
 from fastrl.train import CONF_DIR, run
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
@@ -311,4 +312,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     main()

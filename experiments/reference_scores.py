@@ -24,6 +24,7 @@ import sys
 import tempfile
 import time
 
+import fastrl
 from fastrl import reference
 from fastrl.policy import load_run
 
@@ -146,4 +147,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     sys.exit(main())

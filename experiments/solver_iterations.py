@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+import fastrl
 from fastrl import physics
 from fastrl.physics import io
 
@@ -164,4 +165,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     main()

@@ -83,6 +83,7 @@ import mujoco.rollout
 import numpy as np
 from shipped import shipped_setting  # experiments/shipped.py
 
+import fastrl
 from fastrl import envs, physics
 from fastrl.envs.base import ASSETS
 from fastrl.xla_flags import peer_environ
@@ -634,4 +635,5 @@ def rerender(path: pathlib.Path) -> None:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     main()

@@ -86,6 +86,7 @@ import mujoco
 import numpy as np
 from shipped import shipped_setting  # experiments/shipped.py
 
+import fastrl
 from fastrl import envs
 from fastrl.envs.base import ASSETS
 from fastrl.physics import step
@@ -472,4 +473,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     main()

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+import fastrl
 from fastrl import physics
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -90,4 +91,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     main()

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+import fastrl
 from fastrl import envs, physics, reference
 from fastrl.policy import load_run
 
@@ -177,4 +178,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     sys.exit(main())

@@ -17,43 +17,14 @@ import argparse
 import sys
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from fastrl import agents, compile_cache
-from fastrl.checkpoint import CheckpointError
-from fastrl.policy import load_run
+from fastrl import agents, compile_cache, reference, viewer, xla_flags
+from fastrl.agents.evaluation import make_rollout
+from fastrl.training.checkpoint import CheckpointError, quiet_library_logs
+from fastrl.training.policy import load_run
 
-
-def make_rollout(env, act, length: int | None = None):
-    """A jittable ``(params, key) -> (qpos, alive, markers)`` of one deterministic episode.
-
-    Args:
-      env: the env; act: the learner's deterministic ``act(params, obs)``.
-      length: env steps to run (default and at most: the env's episode length).
-    Returns:
-      The function; its outputs are (length + 1, nq) positions from the reset on, a
-      (length + 1,) mask of the frames that belong to the episode, and the (length + 1, M, 3)
-      positions of the env's ``markers`` (its goals) per frame. The step that ends the episode
-      is masked out: its state already holds the next episode's reset.
-    """
-    length = env.episode_length if length is None else min(length, env.episode_length)
-
-    def rollout(params, key):
-        state = env.reset(key)
-
-        def one(carry, _):
-            s, alive = carry
-            nxt = env.step(s, act(params, s.obs))
-            alive = alive & ~nxt.done
-            return (nxt, alive), (nxt.data.qpos, alive, env.markers(nxt.task))
-
-        _, (qpos, alive, marks) = jax.lax.scan(one, (state, jnp.ones((), bool)), None, length=length)
-        first = lambda x, xs: jnp.concatenate([x[None], xs])  # noqa: E731
-        marks = first(env.markers(state.task), marks)
-        return first(state.data.qpos, qpos), first(jnp.ones((), bool), alive), marks
-
-    return rollout
+__all__ = ["main", "make_rollout", "rollout_frames", "rollout_qpos"]
 
 
 def rollout_frames(env, act, params, key, length: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -88,6 +59,7 @@ def main(argv=None) -> int:
         "--step", type=int, help="the checkpoint (chunk) to evaluate (default: the newest that can be read)"
     )
     args = parser.parse_args(argv)
+    quiet_library_logs()
     if not compile_cache.is_enabled():
         compile_cache.enable()
     agent = int(args.agent) if args.agent is not None and args.agent.isdigit() else args.agent
@@ -105,8 +77,6 @@ def main(argv=None) -> int:
         + "".join(f", {k} {float(v.mean()):.2f}" for k, v in final.items())
     )
     if args.reference or rc.env.integrator is not None or rc.env.solver_iterations is not None:
-        from fastrl import reference
-
         if args.reference:
             policy = lambda obs: learner.act(params, obs)  # noqa: E731
             scores = reference.Scores(ret, length, "fastrl")
@@ -121,8 +91,6 @@ def main(argv=None) -> int:
 
 def _show(args, rc, env, learner, params, env_steps: int) -> int:
     """Writes the first episode as --export, --html and --video ask (exit status 2: no video)."""
-    from fastrl import viewer
-
     try:
         if args.video:
             viewer.video.check_format(args.video)  # before the rollout: fail fast
@@ -143,4 +111,5 @@ def _show(args, rc, env, learner, params, env_steps: int) -> int:
 
 
 if __name__ == "__main__":
+    xla_flags.apply()  # the command line runs with fastrl's XLA:CPU flags; importing sets none
     sys.exit(main())

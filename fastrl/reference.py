@@ -198,7 +198,7 @@ def compare(
     difference of simulators.
 
     Args:
-      env_config: the run's ``fastrl.config.EnvConfig``.
+      env_config: the run's ``fastrl.training.config.EnvConfig``.
       policy: ``(batch, obs_size) -> (batch, nu)`` deterministic actions.
       episodes: episodes per score.
       seed: the evaluation seed (``jax.random.PRNGKey(seed)``, as ``python -m fastrl.evaluate``).

@@ -1,9 +1,11 @@
 """XLA:CPU flags that fastrl's programs run faster with, set before JAX starts its CPU backend.
 
 XLA reads ``XLA_FLAGS`` once, when the first backend starts, so these must be in the environment
-before any JAX computation. ``import fastrl`` calls ``apply()``; the CLI adds the CPU device
-count (``train._set_cpu_flags``). A flag that ``XLA_FLAGS`` already names is left as the user set
-it, and ``FASTRL_XLA_FLAGS=0`` turns the defaults off altogether.
+before any JAX computation. Importing fastrl sets nothing: the command-line entry points call
+``apply()`` (``fastrl.train`` with the CPU device count and the learner, ``train._set_cpu_flags``),
+and a library user opts in with ``fastrl.use_recommended_xla_flags()``. A flag that ``XLA_FLAGS``
+already names is left as the user set it, and ``FASTRL_XLA_FLAGS=0`` turns the defaults off
+altogether.
 
 Measured on the 2-core development machine (jax 0.10.2), default vs with the flag:
 
@@ -29,6 +31,7 @@ line leaves the emitters on for SAC. APG (gradients through the physics) wants b
 from __future__ import annotations
 
 import os
+import sys
 
 DEFAULTS = {
     "--xla_cpu_use_fusion_emitters": "false",
@@ -40,7 +43,7 @@ DEVICE_FLAG = "--xla_force_host_platform_device_count"
 # The flags fastrl put into XLA_FLAGS, so that a child process (which inherits both) can tell them
 # from the user's own: a learner may take out a default it runs slower with, never a user's flag.
 ADDED_VAR = "FASTRL_XLA_FLAGS_ADDED"
-_USER_FLAGS = os.environ.get("XLA_FLAGS")  # as the user set it, before ``import fastrl`` added to it
+_USER_FLAGS = os.environ.get("XLA_FLAGS")  # as the user set it, before ``apply()`` added to it
 
 
 def names(flags: str) -> set[str]:
@@ -52,7 +55,7 @@ def with_defaults(flags: str, devices: int | None = None, algo: str | None = Non
     """``flags`` (an ``XLA_FLAGS`` string) plus every default flag it does not name, and the
     CPU device count when ``devices`` is given and it names none. With ``algo``, the defaults
     that learner runs slower with (``NOT_FOR``) are left out, and taken out again where fastrl
-    added them earlier (``import fastrl``, here or in a parent process: ``ADDED_VAR``)."""
+    added them earlier (an earlier ``apply()``, here or in a parent process: ``ADDED_VAR``)."""
     skip = NOT_FOR.get(algo or "", ())
     added_earlier = set(os.environ.get(ADDED_VAR, "").split())
     out = [f for f in flags.split() if not (f in added_earlier and names(f) & set(skip))]
@@ -69,8 +72,6 @@ def apply(devices: int | None = None, algo: str | None = None) -> bool:
 
     Returns whether it could (after a backend starts, XLA no longer reads the flags).
     """
-    import sys
-
     if "jax" in sys.modules:
         from jax._src import xla_bridge
 

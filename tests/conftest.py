@@ -9,7 +9,11 @@ import mujoco
 import numpy as np
 import pytest
 
-import fastrl  # noqa: F401  (first, so its XLA:CPU flags are set before JAX starts a backend)
+import fastrl
+
+# fastrl's XLA:CPU flags, as the command line uses them: set before JAX starts a backend (importing
+# fastrl sets nothing; this is the library's one opt-in call).
+fastrl.use_recommended_xla_flags()
 
 ASSETS = pathlib.Path(__file__).parent / "assets"
 MODELS = sorted(p.stem for p in ASSETS.glob("*.xml"))

@@ -8,28 +8,27 @@ simulator fused in. The runner jits a ``lax.scan`` of ``update``; a checkpoint i
 from __future__ import annotations
 
 import dataclasses
-import inspect
 
 from fastrl.agents.apg import APGConfig, UnsuitableEnvError, make_apg
-from fastrl.agents.base import Learner, PolicyParams
+from fastrl.agents.base import Algorithm, Learner, PolicyParams, SplitsOverDevices
 from fastrl.agents.es import ESConfig, make_es
-from fastrl.agents.evaluation import make_evaluator
+from fastrl.agents.evaluation import make_evaluator, make_rollout
 from fastrl.agents.networks import NetworkConfig
 from fastrl.agents.ppo import PPOConfig, make_ppo
 from fastrl.agents.sac import SACConfig, make_sac
 
 ALGORITHMS = {
-    "ppo": (PPOConfig, make_ppo),
-    "sac": (SACConfig, make_sac),
-    "es": (ESConfig, make_es),
-    "apg": (APGConfig, make_apg),
+    "ppo": Algorithm(PPOConfig, make_ppo, splits_over_devices=True),
+    "sac": Algorithm(SACConfig, make_sac),
+    "es": Algorithm(ESConfig, make_es),
+    "apg": Algorithm(APGConfig, make_apg),
 }
 
 
 def config_class(name: str):
     """The frozen config dataclass of algorithm ``name``."""
     try:
-        return ALGORITHMS[name][0]
+        return ALGORITHMS[name].config
     except KeyError:
         choices = ", ".join(sorted(ALGORITHMS))
         raise ValueError(f"unknown algorithm {name!r}; choose one of: {choices}") from None
@@ -37,19 +36,28 @@ def config_class(name: str):
 
 def splits_over_devices(name: str) -> bool:
     """Whether learner ``name`` takes a device mesh and splits its env batch and minibatches itself."""
-    return "mesh" in inspect.signature(ALGORITHMS[name][1]).parameters
+    return ALGORITHMS[name].splits_over_devices
+
+
+def splits_evenly(name: str, config, devices: int) -> bool:
+    """Whether learner ``name`` with ``config`` can split its own work over ``devices`` devices
+    (False for a learner that never splits it: ``splits_over_devices``)."""
+    if not splits_over_devices(name):
+        return False
+    split: SplitsOverDevices = config
+    return split.splits_evenly(devices)
 
 
 def make_learner(name: str, config, env, network: NetworkConfig, total_updates: int, mesh=None) -> Learner:
     """Builds the learner ``name`` from its config dataclass (``mesh``: see ``splits_over_devices``)."""
-    cls, factory = ALGORITHMS[name]
-    if not isinstance(config, cls):
-        raise TypeError(f"{name} expects a {cls.__name__}, got {type(config).__name__}")
+    algorithm = ALGORITHMS[name]
+    if not isinstance(config, algorithm.config):
+        raise TypeError(f"{name} expects a {algorithm.config.__name__}, got {type(config).__name__}")
     if mesh is not None:
-        if not splits_over_devices(name):
+        if not algorithm.splits_over_devices:
             raise ValueError(f"{name} does not split its work over devices itself; pass mesh=None")
-        return factory(config, env, network, total_updates, mesh=mesh)
-    return factory(config, env, network, total_updates)
+        return algorithm.make(config, env, network, total_updates, mesh=mesh)
+    return algorithm.make(config, env, network, total_updates)
 
 
 def config_fields(name: str) -> list[str]:
@@ -58,6 +66,11 @@ def config_fields(name: str) -> list[str]:
 
 __all__ = [
     "ALGORITHMS",
+    "Algorithm",
+    "SplitsOverDevices",
+    "make_rollout",
+    "splits_evenly",
+    "splits_over_devices",
     "APGConfig",
     "ESConfig",
     "SACConfig",

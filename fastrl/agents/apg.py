@@ -191,4 +191,5 @@ def make_apg(config: APGConfig, env: Env, network: NetworkConfig, total_updates:
     act = make_act(policy_net, dist, norm)
 
     return Learner(init=init, update=update, policy_params=policy_params, act=act,
-                   env_steps_per_update=config.num_envs * config.horizon)  # fmt: skip
+                   env_steps_per_update=config.num_envs * config.horizon,
+                   num_envs=config.num_envs)  # fmt: skip

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import jax
 
@@ -28,13 +28,38 @@ class Learner(NamedTuple):
       policy_params         (state) -> PolicyParams
       act                   (PolicyParams, obs, key | None) -> action; key None = deterministic
       env_steps_per_update  environment steps one ``update`` takes (static)
+      num_envs              the env batch of the state's env states (every ``envs.State`` in it
+                            has this leading axis), or None where the state holds none (ES)
     """
 
-    init: object
-    update: object
-    policy_params: object
-    act: object
+    init: Callable[[jax.Array], Any]
+    update: Callable[[Any], tuple[Any, dict[str, jax.Array]]]
+    policy_params: Callable[[Any], PolicyParams]
+    act: Callable[..., jax.Array]
     env_steps_per_update: int
+    num_envs: int | None = None
+
+
+class SplitsOverDevices(Protocol):
+    """The config of a learner that splits its own work over a device mesh (its factory takes
+    ``mesh=``): it says which device counts divide its batches evenly."""
+
+    def splits_evenly(self, devices: int) -> bool: ...
+
+
+class Algorithm(NamedTuple):
+    """One learning algorithm as the registry knows it.
+
+    Fields:
+      config               the frozen config dataclass
+      make                 ``make(config, env, network, total_updates[, mesh=]) -> Learner``
+      splits_over_devices  ``make`` takes a device mesh and splits its env batch and minibatch
+                           gradients itself; ``config`` is then a ``SplitsOverDevices``
+    """
+
+    config: type
+    make: Callable[..., Learner]
+    splits_over_devices: bool = False
 
 
 def observation_normalizer(enabled: bool) -> Callable[[normalizer.RunningStats, jax.Array], jax.Array]:

@@ -1,4 +1,4 @@
-"""Deterministic evaluation: one episode per env under the policy's mode."""
+"""Deterministic evaluation: one episode per env under the policy's mode, and one episode's frames."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import jax
 import jax.numpy as jnp
 from jax.sharding import Mesh
 
-from fastrl.envs.base import Env, over_devices
+from fastrl.devices import over_devices
+from fastrl.envs.base import Env
 
 
 def make_evaluator(env: Env, act, num_envs: int, mesh: Mesh | None = None):
@@ -43,3 +44,34 @@ def make_evaluator(env: Env, act, num_envs: int, mesh: Mesh | None = None):
         return ret, length, final
 
     return evaluate
+
+
+def make_rollout(env, act, length: int | None = None):
+    """A jittable ``(params, key) -> (qpos, alive, markers)`` of one deterministic episode.
+
+    Args:
+      env: the env; act: the learner's deterministic ``act(params, obs)``.
+      length: env steps to run (default and at most: the env's episode length).
+    Returns:
+      The function; its outputs are (length + 1, nq) positions from the reset on, a
+      (length + 1,) mask of the frames that belong to the episode, and the (length + 1, M, 3)
+      positions of the env's ``markers`` (its goals) per frame. The step that ends the episode
+      is masked out: its state already holds the next episode's reset.
+    """
+    length = env.episode_length if length is None else min(length, env.episode_length)
+
+    def rollout(params, key):
+        state = env.reset(key)
+
+        def one(carry, _):
+            s, alive = carry
+            nxt = env.step(s, act(params, s.obs))
+            alive = alive & ~nxt.done
+            return (nxt, alive), (nxt.data.qpos, alive, env.markers(nxt.task))
+
+        _, (qpos, alive, marks) = jax.lax.scan(one, (state, jnp.ones((), bool)), None, length=length)
+        first = lambda x, xs: jnp.concatenate([x[None], xs])  # noqa: E731
+        marks = first(env.markers(state.task), marks)
+        return first(state.data.qpos, qpos), first(jnp.ones((), bool), alive), marks
+
+    return rollout

@@ -15,6 +15,7 @@ clipping; advantage normalisation per minibatch; global gradient-norm clipping.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
@@ -25,7 +26,8 @@ from jax.sharding import Mesh
 from fastrl.agents import normalizer
 from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
-from fastrl.envs.base import DEVICE_AXIS, Env, State, over_devices
+from fastrl.devices import DEVICE_AXIS, over_devices
+from fastrl.envs.base import Env, State
 from fastrl.physics.dataclass import pytree_dataclass
 
 
@@ -184,6 +186,20 @@ def gae(
     return adv, adv + values
 
 
+class _Parts(NamedTuple):
+    """What the pieces of PPO share: networks, action distribution, optimiser, normaliser, the
+    batched env functions and the device axis (None without a mesh)."""
+
+    policy_net: MLP
+    value_net: MLP
+    dist: TanhGaussian
+    optimizer: optax.GradientTransformation
+    norm: Callable
+    env_reset: Callable
+    env_step: Callable
+    axis: str | None
+
+
 def make_ppo(
     config: PPOConfig, env: Env, network: NetworkConfig, total_updates: int = 1, mesh: Mesh | None = None
 ) -> Learner:
@@ -194,7 +210,7 @@ def make_ppo(
       env: a fastrl env (batched here with vmap).
       network: network sizes.
       total_updates: iterations the run will take (sets the linear learning-rate decay).
-      mesh: a one-axis mesh (``base.DEVICE_AXIS``) to split the work over: each device steps its
+      mesh: a one-axis mesh (``fastrl.devices.DEVICE_AXIS``) to split the work over: each device steps its
         slice of the environments and computes the gradient of its half of every minibatch;
         gradients are averaged, so the result is the one-device one up to summation order. The
         env batch and the minibatches must divide evenly. None: no explicit split.
@@ -204,41 +220,82 @@ def make_ppo(
             f"algo.num_envs={config.num_envs} and the minibatch size {config.minibatch_size} must "
             f"divide evenly over {mesh.devices.size} devices"
         )
-    obs_size, nu = env.observation_size, env.action_size
+    obs_size = env.observation_size
+    p = _parts(config, env, network, total_updates, mesh)
+    rollout = _make_rollout(config, p)
+    sgd = _make_sgd(config, p, _make_minibatch_grads(config, p, mesh), env.action_size)
+
+    def init(key: jax.Array) -> PPOState:
+        k_pol, k_val, k_env, k_rng = jax.random.split(key, 4)
+        dummy = jnp.zeros((1, obs_size))
+        params = {"policy": p.policy_net.init(k_pol, dummy), "value": p.value_net.init(k_val, dummy)}
+        env_state = p.env_reset(jax.random.split(k_env, config.num_envs))
+        zero = jnp.zeros((), jnp.int32)
+        return PPOState(
+            params=params, opt_state=p.optimizer.init(params), obs_stats=normalizer.init(obs_size),
+            env_state=env_state, rng=k_rng, env_steps=zero, updates=zero,
+        )  # fmt: skip
+
+    def update(state: PPOState) -> tuple[PPOState, dict]:
+        rng, k_roll, k_sgd = jax.random.split(state.rng, 3)
+        env_state, traj = rollout(state, k_roll)
+        stats = state.obs_stats
+        if config.normalize_observations:
+            stats = normalizer.update(stats, traj.obs)
+        state = state.replace(obs_stats=stats)
+        # Values of the observations that ended episodes (final_obs where done), at collection.
+        final_values = p.value_net.apply(state.params["value"], p.norm(stats, traj.final_obs))[..., 0]
+        params, opt_state, info = sgd(state, traj, final_values, k_sgd)
+        new = PPOState(
+            params=params, opt_state=opt_state, obs_stats=stats, env_state=env_state, rng=rng,
+            env_steps=state.env_steps + config.batch_size, updates=state.updates + 1,
+        )  # fmt: skip
+        return new, _metrics(info, traj, env_state)
+
+    def policy_params(state: PPOState) -> PolicyParams:
+        return PolicyParams(network=state.params["policy"], obs_stats=state.obs_stats)
+
+    act = make_act(p.policy_net, p.dist, p.norm)
+
+    return Learner(
+        init=init, update=update, policy_params=policy_params, act=act,
+        env_steps_per_update=config.batch_size, num_envs=config.num_envs,
+    )  # fmt: skip
+
+
+def _parts(
+    config: PPOConfig, env: Env, network: NetworkConfig, total_updates: int, mesh: Mesh | None
+) -> _Parts:
+    """Networks, distribution, optimiser (with its learning-rate schedule) and env functions."""
+    nu = env.action_size
     low, high = (jnp.asarray(b) for b in env.action_bounds)
-    dist = TanhGaussian(low, high, config.init_std)
-    policy_net = MLP(network.policy_hidden, 2 * nu, network.activation)
-    value_net = MLP(network.value_hidden, 1, network.activation, final_scale=1.0)
     steps_per_update = config.update_epochs * config.num_minibatches
     if config.lr_schedule == "linear":
         lr = optax.linear_schedule(config.learning_rate, 0.0, max(1, total_updates * steps_per_update))
     else:
         lr = config.learning_rate
-    optimizer = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(lr))
-    env_reset = jax.vmap(env.reset)
-    env_step = over_devices(jax.vmap(env.step), mesh)
-    axis = None if mesh is None else DEVICE_AXIS
+    return _Parts(
+        policy_net=MLP(network.policy_hidden, 2 * nu, network.activation),
+        value_net=MLP(network.value_hidden, 1, network.activation, final_scale=1.0),
+        dist=TanhGaussian(low, high, config.init_std),
+        optimizer=optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(lr)),
+        norm=observation_normalizer(config.normalize_observations),
+        env_reset=jax.vmap(env.reset),
+        env_step=over_devices(jax.vmap(env.step), mesh),
+        axis=None if mesh is None else DEVICE_AXIS,
+    )
 
-    norm = observation_normalizer(config.normalize_observations)
 
-    def init(key: jax.Array) -> PPOState:
-        k_pol, k_val, k_env, k_rng = jax.random.split(key, 4)
-        dummy = jnp.zeros((1, obs_size))
-        params = {"policy": policy_net.init(k_pol, dummy), "value": value_net.init(k_val, dummy)}
-        env_state = env_reset(jax.random.split(k_env, config.num_envs))
-        zero = jnp.zeros((), jnp.int32)
-        return PPOState(
-            params=params, opt_state=optimizer.init(params), obs_stats=normalizer.init(obs_size),
-            env_state=env_state, rng=k_rng, env_steps=zero, updates=zero,
-        )  # fmt: skip
+def _make_rollout(config: PPOConfig, p: _Parts):
+    """``rollout(state, key) -> (env_state, traj)``: ``unroll_length`` steps of the policy's samples."""
 
     def rollout(state: PPOState, key: jax.Array):
         def one(env_state, k):
-            out = policy_net.apply(state.params["policy"], norm(state.obs_stats, env_state.obs))
-            raw = dist.sample_raw(out, k)
-            nxt = env_step(env_state, dist.postprocess(raw))
+            out = p.policy_net.apply(state.params["policy"], p.norm(state.obs_stats, env_state.obs))
+            raw = p.dist.sample_raw(out, k)
+            nxt = p.env_step(env_state, p.dist.postprocess(raw))
             tr = Transition(
-                obs=env_state.obs, raw_action=raw, log_prob=dist.log_prob(out, raw), reward=nxt.reward,
+                obs=env_state.obs, raw_action=raw, log_prob=p.dist.log_prob(out, raw), reward=nxt.reward,
                 terminated=nxt.terminated, done=nxt.done, final_obs=nxt.final_obs,
                 episode_return=nxt.episode_return,
             )  # fmt: skip
@@ -246,33 +303,40 @@ def make_ppo(
 
         return jax.lax.scan(one, state.env_state, jax.random.split(key, config.unroll_length))
 
+    return rollout
+
+
+def _make_loss(config: PPOConfig, p: _Parts):
+    """``loss_fn(params, stats, batch, adv, targets, old_values, ent_noise) -> (total, stats)``:
+    the clipped surrogate, value and entropy losses of a minibatch."""
+
     def global_mean(x):
         """Mean over the minibatch (all devices' shares of it, which are of equal size)."""
         m = jnp.mean(x)
-        return m if axis is None else jax.lax.pmean(m, axis)
+        return m if p.axis is None else jax.lax.pmean(m, p.axis)
 
     def loss_fn(params, stats, batch, adv, targets, old_values, ent_noise):
         # Under a mesh this sees one device's share of the minibatch: its losses are means over
         # that share, and the gradients are averaged across devices (``minibatch_grads``).
-        obs = norm(stats, batch.obs)
-        out = policy_net.apply(params["policy"], obs)
-        log_prob = dist.log_prob(out, batch.raw_action)
+        obs = p.norm(stats, batch.obs)
+        out = p.policy_net.apply(params["policy"], obs)
+        log_prob = p.dist.log_prob(out, batch.raw_action)
         ratio = jnp.exp(log_prob - batch.log_prob)
         if config.normalize_advantages:
             mean = global_mean(adv)
             adv = (adv - mean) / (jnp.sqrt(global_mean((adv - mean) ** 2)) + 1e-8)
         clipped = jnp.clip(ratio, 1 - config.clip_eps, 1 + config.clip_eps)
         policy_loss = -jnp.mean(jnp.minimum(ratio * adv, clipped * adv))
-        value = value_net.apply(params["value"], obs)[..., 0]
+        value = p.value_net.apply(params["value"], obs)[..., 0]
         v_loss = (value - targets) ** 2
         if config.value_clip_eps is not None:
             v_clip = old_values + jnp.clip(value - old_values, -config.value_clip_eps, config.value_clip_eps)
             v_loss = jnp.maximum(v_loss, (v_clip - targets) ** 2)
         value_loss = 0.5 * jnp.mean(v_loss)
         if config.entropy_estimate == "squashed":
-            entropy = jnp.mean(dist.squashed_entropy_at(out, ent_noise))
+            entropy = jnp.mean(p.dist.squashed_entropy_at(out, ent_noise))
         else:
-            entropy = jnp.mean(dist.entropy(out))
+            entropy = jnp.mean(p.dist.entropy(out))
         total = policy_loss + config.value_cost * value_loss - config.entropy_cost * entropy
         stats_out = {
             "policy_loss": policy_loss,
@@ -283,22 +347,34 @@ def make_ppo(
         }
         return total, stats_out
 
+    return loss_fn
+
+
+def _make_minibatch_grads(config: PPOConfig, p: _Parts, mesh: Mesh | None):
+    """``minibatch_grads(params, stats, batch, adv, targets, old_values, ent_noise) -> (grads,
+    info)``; under a mesh each device takes its share of the minibatch and the gradients are
+    averaged across devices."""
+    loss_fn = _make_loss(config, p)
+
     def minibatch_grads(params, stats, batch, adv, targets, old_values, ent_noise):
         grads, info = jax.grad(loss_fn, has_aux=True)(
             params, stats, batch, adv, targets, old_values, ent_noise
         )
-        if axis is not None:
-            grads, info = jax.lax.pmean((grads, info), axis)
+        if p.axis is not None:
+            grads, info = jax.lax.pmean((grads, info), p.axis)
         return grads, info
 
-    if mesh is not None:
-        replicated = jax.sharding.PartitionSpec()
-        split = jax.sharding.PartitionSpec(DEVICE_AXIS)
-        minibatch_grads = jax.shard_map(
-            minibatch_grads, mesh=mesh, in_specs=(replicated, replicated, split, split, split, split, split),
-            out_specs=replicated, check_vma=False,
-        )  # fmt: skip
+    if mesh is None:
+        return minibatch_grads
+    replicated = jax.sharding.PartitionSpec()
+    split = jax.sharding.PartitionSpec(DEVICE_AXIS)
+    return jax.shard_map(
+        minibatch_grads, mesh=mesh, in_specs=(replicated, replicated, split, split, split, split, split),
+        out_specs=replicated, check_vma=False,
+    )  # fmt: skip
 
+
+def _make_estimate(config: PPOConfig, p: _Parts):
     def estimate(value_params, stats, traj: Transition, final_values: jax.Array):
         """Values, advantages and targets of a rollout under ``value_params``.
 
@@ -306,7 +382,7 @@ def make_ppo(
         the next step's value is read from ``values`` instead, so only the last step of the
         rollout needs one more forward pass, made here.
         """
-        value = lambda o: value_net.apply(value_params, norm(stats, o))[..., 0]  # noqa: E731
+        value = lambda o: p.value_net.apply(value_params, p.norm(stats, o))[..., 0]  # noqa: E731
         values = value(jnp.concatenate([traj.obs, traj.final_obs[-1:]]))
         next_values = jnp.where(traj.done, final_values, values[1:])
         rewards = traj.reward * config.reward_scaling
@@ -314,6 +390,14 @@ def make_ppo(
             rewards, values[:-1], next_values, traj.terminated, traj.done, config.gamma, config.gae_lambda
         )
         return adv, targets, values[:-1]
+
+    return estimate
+
+
+def _make_sgd(config: PPOConfig, p: _Parts, minibatch_grads, nu: int):
+    """``sgd(state, traj, final_values, key) -> (params, opt_state, info)``: ``update_epochs``
+    passes of shuffled minibatches over the rollout."""
+    estimate = _make_estimate(config, p)
 
     def sgd(state: PPOState, traj: Transition, final_values: jax.Array, key):
         flatten = lambda x: x.reshape((config.batch_size,) + x.shape[2:])  # noqa: E731
@@ -333,53 +417,40 @@ def make_ppo(
                 params, opt_state = carry
                 (batch, adv, targets, old_values), noise = mb
                 grads, info = minibatch_grads(params, state.obs_stats, batch, adv, targets, old_values, noise)
-                updates, opt_state = optimizer.update(grads, opt_state, params)
+                updates, opt_state = p.optimizer.update(grads, opt_state, params)
                 info["grad_norm"] = optax.tree.norm(grads)
                 return (optax.apply_updates(params, updates), opt_state), info
 
-            # Only the squashed entropy estimate samples: one draw per sample of each minibatch,
-            # made here whole so that a split over devices draws the same numbers.
-            noise = jnp.zeros((config.num_minibatches, config.minibatch_size, 0))
-            if config.entropy_estimate == "squashed":
-                ent_keys = jax.random.split(jax.random.fold_in(k, 1), config.num_minibatches)
-                shape = (config.minibatch_size, nu)
-                noise = jax.vmap(lambda kk: jax.random.normal(kk, shape))(ent_keys)
-            return jax.lax.scan(minibatch, (params, opt_state), (shuffled, noise))
+            return jax.lax.scan(minibatch, (params, opt_state), (shuffled, _entropy_noise(config, k, nu)))
 
         keys = jax.random.split(key, config.update_epochs)
         (params, opt_state), info = jax.lax.scan(epoch, (state.params, state.opt_state), keys)
         return params, opt_state, jax.tree.map(jnp.mean, info)
 
-    def update(state: PPOState) -> tuple[PPOState, dict]:
-        rng, k_roll, k_sgd = jax.random.split(state.rng, 3)
-        env_state, traj = rollout(state, k_roll)
-        stats = state.obs_stats
-        if config.normalize_observations:
-            stats = normalizer.update(stats, traj.obs)
-        state = state.replace(obs_stats=stats)
-        # Values of the observations that ended episodes (final_obs where done), at collection.
-        final_values = value_net.apply(state.params["value"], norm(stats, traj.final_obs))[..., 0]
-        params, opt_state, info = sgd(state, traj, final_values, k_sgd)
-        done = traj.done.astype(jnp.float32)
-        n_done = jnp.sum(done)
-        metrics = {f"loss/{k}": v for k, v in info.items()}
-        metrics["train/episode_return_sum"] = jnp.sum(traj.episode_return * done)
-        metrics["train/episodes"] = n_done
-        metrics["train/reward_mean"] = jnp.mean(traj.reward)
-        for k, v in env_state.metrics.items():
-            metrics[f"env/{k}"] = jnp.mean(v)
-        new = PPOState(
-            params=params, opt_state=opt_state, obs_stats=stats, env_state=env_state, rng=rng,
-            env_steps=state.env_steps + config.batch_size, updates=state.updates + 1,
-        )  # fmt: skip
-        return new, metrics
+    return sgd
 
-    def policy_params(state: PPOState) -> PolicyParams:
-        return PolicyParams(network=state.params["policy"], obs_stats=state.obs_stats)
 
-    act = make_act(policy_net, dist, norm)
+def _entropy_noise(config: PPOConfig, k: jax.Array, nu: int) -> jax.Array:
+    """(num_minibatches, minibatch_size, nu) normal draws of an epoch (key ``k``), or zero-size.
 
-    return Learner(
-        init=init, update=update, policy_params=policy_params, act=act,
-        env_steps_per_update=config.batch_size,
-    )  # fmt: skip
+    Only the squashed entropy estimate samples: one draw per sample of each minibatch, made here
+    whole so that a split over devices draws the same numbers.
+    """
+    if config.entropy_estimate != "squashed":
+        return jnp.zeros((config.num_minibatches, config.minibatch_size, 0))
+    ent_keys = jax.random.split(jax.random.fold_in(k, 1), config.num_minibatches)
+    shape = (config.minibatch_size, nu)
+    return jax.vmap(lambda kk: jax.random.normal(kk, shape))(ent_keys)
+
+
+def _metrics(info: dict, traj: Transition, env_state: State) -> dict[str, jax.Array]:
+    """An update's metrics: losses (means over its minibatches), finished episodes, env metrics."""
+    done = traj.done.astype(jnp.float32)
+    n_done = jnp.sum(done)
+    metrics = {f"loss/{k}": v for k, v in info.items()}
+    metrics["train/episode_return_sum"] = jnp.sum(traj.episode_return * done)
+    metrics["train/episodes"] = n_done
+    metrics["train/reward_mean"] = jnp.mean(traj.reward)
+    for k, v in env_state.metrics.items():
+        metrics[f"env/{k}"] = jnp.mean(v)
+    return metrics

@@ -1,8 +1,22 @@
 """Functional environments with Gymnasium v5 semantics, and a batched Gymnasium vector API."""
 
-from fastrl.envs.base import Env, Randomization, State, batch_mesh, over_devices
+from fastrl.devices import batch_mesh, over_devices
+from fastrl.envs.base import Env, Randomization, State
 from fastrl.envs.registry import make, names, register
-from fastrl.envs.vector import GymEnv, VectorEnv, make_gym, make_vec
+
+_GYMNASIUM_ADAPTER = ("GymEnv", "VectorEnv", "make_gym", "make_vec")
+
+
+def __getattr__(name):
+    # PEP 562 lazy attributes: the Gymnasium adapter loads on first use, because importing
+    # gymnasium writes PYGAME_HIDE_SUPPORT_PROMPT into os.environ, and ``import fastrl.envs`` must
+    # leave the environment as it was.
+    if name in _GYMNASIUM_ADAPTER:
+        from fastrl.envs import vector
+
+        return getattr(vector, name)
+    raise AttributeError(f"module 'fastrl.envs' has no attribute {name!r}")
+
 
 __all__ = [
     "Env",

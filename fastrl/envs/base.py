@@ -17,13 +17,12 @@ those MuJoCo's ``mjData`` holds after ``mj_step``.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, PartitionSpec
 
 from fastrl import physics
 from fastrl.physics import Data, Model
@@ -410,28 +409,3 @@ class Env:
     def __repr__(self) -> str:
         cls = type(self).__name__
         return f"{cls}({self.name!r}, frame_skip={self.frame_skip}, episode_length={self.episode_length})"
-
-
-DEVICE_AXIS = "devices"
-
-
-def batch_mesh(batch: int) -> Mesh | None:
-    """A one-axis mesh (``DEVICE_AXIS``) over all devices when there are several and they divide
-    ``batch`` evenly; else None."""
-    devices = jax.devices()
-    if len(devices) < 2 or batch % len(devices):
-        return None
-    return Mesh(np.array(devices), (DEVICE_AXIS,))
-
-
-def over_devices(fn: Callable, mesh: Mesh | None) -> Callable:
-    """``fn`` with every argument's and result's leading (batch) axis split over ``mesh``'s devices.
-
-    Each device runs ``fn`` on its slice (``shard_map``), so a per-environment function such as
-    a vmapped ``env.step`` runs on all devices at once with no communication. With ``mesh=None``
-    this is ``fn`` itself.
-    """
-    if mesh is None:
-        return fn
-    split = PartitionSpec(DEVICE_AXIS)
-    return jax.shard_map(fn, mesh=mesh, in_specs=split, out_specs=split, check_vma=False)

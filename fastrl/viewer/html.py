@@ -18,6 +18,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from fastrl.agents.evaluation import make_rollout
 from fastrl.viewer.scene import build_scene, scene_json
 
 JS_PATH = Path(__file__).with_name("viewer.js")
@@ -133,8 +134,6 @@ def make_run_writer(env, act: Callable, title: str = "", batched: bool = False, 
       ``write(run_dir, chunk, params, key) -> Path`` that writes
       ``run_dir/viewer/chunk_<chunk>.html`` and copies it to ``run_dir/viewer.html``.
     """
-    from fastrl.evaluate import make_rollout  # here: fastrl.evaluate imports the runner
-
     rollout = jax.jit(make_rollout(env, act, steps))
 
     def write(run_dir: str | Path, chunk: int, params, key: jax.Array) -> Path:

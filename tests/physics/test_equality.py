@@ -1,5 +1,6 @@
 """Equality constraints (connect, weld, joint) against MuJoCo C in float64: the rows, forces and
-acceleration at random states, 1 s trajectories, and switching constraints on and off."""
+acceleration at random states, 1 s trajectories, and switching constraints on and off; a gripper
+driven through a tendon with a joint equality."""
 
 from __future__ import annotations
 
@@ -102,7 +103,30 @@ JOINTS = """
 </mujoco>
 """
 
-MODELS = {"four_bar": FOUR_BAR, "welds": WELDS, "joints": JOINTS}
+# A parallel gripper as Menagerie builds them: two finger slides, a fixed tendon summing them that
+# one actuator pulls, a joint equality mirroring the fingers, and finger limits.
+GRIPPER = """
+<mujoco><option timestep="0.002"/>
+  <worldbody>
+    <body name="hand" pos="0 0 0.5">
+      <joint name="lift" type="slide" axis="0 0 1" damping="5"/>
+      <geom type="box" size="0.05 0.02 0.02" mass="0.5"/>
+      <body pos="0 0.02 -0.04"><joint name="f1" type="slide" axis="0 1 0" range="0 0.04" damping="2"/>
+        <geom type="box" size="0.01 0.005 0.03" contype="0" conaffinity="0"/></body>
+      <body pos="0 -0.02 -0.04"><joint name="f2" type="slide" axis="0 -1 0" range="0 0.04" damping="2"/>
+        <geom type="box" size="0.01 0.005 0.03" contype="0" conaffinity="0"/></body>
+    </body>
+  </worldbody>
+  <tendon><fixed name="split"><joint joint="f1" coef="0.5"/><joint joint="f2" coef="0.5"/></fixed></tendon>
+  <equality><joint joint1="f1" joint2="f2" solimp="0.95 0.99 0.001"/></equality>
+  <actuator>
+    <general tendon="split" ctrlrange="0 255" gainprm="0.01568 0 0" biasprm="0 -100 -10"/>
+    <motor joint="lift" gear="10"/>
+  </actuator>
+</mujoco>
+"""
+
+MODELS = {"four_bar": FOUR_BAR, "welds": WELDS, "joints": JOINTS, "gripper": GRIPPER}
 
 
 def _models(name):

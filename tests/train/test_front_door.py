@@ -118,7 +118,7 @@ def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path, capsys):
         if chunk == 1:
             os.kill(os.getpid(), signal.SIGINT)
 
-    from fastrl.train import runner
+    from fastrl import runner
 
     cfg = compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}"])
     rc = typed(QUICK_RESUME)
@@ -245,7 +245,8 @@ def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
 def test_cli_xla_flags_keep_what_the_user_set(monkeypatch):
     from jax._src import xla_bridge
 
-    from fastrl import train, xla_flags
+    from fastrl import xla_flags
+    from fastrl.training import train
 
     ppo = typed(["env=inverted_pendulum", "algo=ppo", "algo.num_envs=6", "algo.unroll_length=4"])
     monkeypatch.setenv("FASTRL_CPU_DEVICES", "2")
@@ -278,10 +279,12 @@ def test_cli_xla_flags_keep_what_the_user_set(monkeypatch):
 
 def test_cli_xla_flags_per_learner(monkeypatch):
     """SAC runs with XLA's fusion emitters (faster for its networks): the command line takes out
-    the flag ``import fastrl`` added (here or in a parent process), never the user's own."""
+    the flag ``fastrl.use_recommended_xla_flags()`` added (here or in a parent process), never the
+    user's own."""
     from jax._src import xla_bridge
 
-    from fastrl import train, xla_flags
+    from fastrl import xla_flags
+    from fastrl.training import train
 
     sac = typed(["env=inverted_pendulum", "algo=sac", "algo.num_envs=4"])
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
@@ -292,9 +295,9 @@ def test_cli_xla_flags_per_learner(monkeypatch):
     )
     monkeypatch.setenv(xla_flags.ADDED_VAR, "")
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
-    xla_flags.apply()  # what ``import fastrl`` does
+    xla_flags.apply()  # what ``fastrl.use_recommended_xla_flags()`` does
     assert emitters in os.environ["XLA_FLAGS"].split()
-    xla_flags.apply()  # a child process that inherited both variables imports fastrl again
+    xla_flags.apply()  # a child process that inherited both variables opts in again
     train._set_cpu_flags(sac)
     assert os.environ["XLA_FLAGS"].split() == ["--xla_dump_to=/tmp/x", ynn]
     # The user's own setting of the flag stays.

@@ -124,6 +124,8 @@ def test_batch_run_logs_each_agent_and_resumes_bit_exactly(tmp_path):
 
 _SHARD_SCRIPT = """
 import json, sys, jax, numpy as np
+import fastrl
+fastrl.use_recommended_xla_flags()
 from fastrl import runner
 from tests.train.test_front_door import typed
 cfg = typed(sys.argv[2:])

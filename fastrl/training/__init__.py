@@ -1,0 +1,26 @@
+"""The training layer: from a composed config to a trained, checkpointed, loadable policy.
+
+- ``config``: the typed run configuration (``RunConfig``), built from Hydra's composed dict.
+- ``scale``: agent batches in one program (seeds, ``vmap_sweep``) and the state's device layout.
+- ``checkpoint``: the whole training state with orbax, plus the resolved config.
+- ``runner``: the host loop over compiled chunks (``train``).
+- ``policy``: trained policies from run folders (``load_policy``, ``load_run``).
+- ``train``: the command line, ``python -m fastrl.train`` (Hydra).
+
+The old paths (``fastrl.config``, ``fastrl.runner``, ``fastrl.train`` ...) re-export these modules.
+"""
+
+from fastrl.training.checkpoint import Checkpointer, CheckpointError
+from fastrl.training.config import ConfigError, RunConfig
+from fastrl.training.policy import load_policy, load_run
+from fastrl.training.runner import train
+
+__all__ = [
+    "CheckpointError",
+    "Checkpointer",
+    "ConfigError",
+    "RunConfig",
+    "load_policy",
+    "load_run",
+    "train",
+]

@@ -1,0 +1,273 @@
+"""Checkpoints of the whole training state with orbax, plus the resolved config.
+
+A checkpoint is the learner's state pytree (params, optimiser state, normaliser, env states,
+RNG, counters: everything ``update`` reads) and a JSON ``meta`` item holding the resolved
+config and the runner's position, so a resumed run is the same run. Orbax writes each step to
+a temporary folder and renames it when complete, so an interrupted save never replaces the
+last good checkpoint; restoring checks the config first and names every difference.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar
+
+import jax
+import jax.numpy as jnp
+import orbax.checkpoint as ocp
+
+from fastrl.training.config import identity_diff
+
+__all__ = [
+    "CHECKPOINT_DIR",
+    "CheckpointError",
+    "Checkpointer",
+    "ConfigMismatch",
+    "UnreadableCheckpoint",
+    "quiet_library_logs",
+]
+
+T = TypeVar("T")
+# The folder of a run directory that holds its checkpoints (one sub-folder per saved chunk).
+CHECKPOINT_DIR = "checkpoints"
+# Orbax logs every save step at INFO, JAX its backend probing: the command line quiets them.
+_QUIET_LOGGERS = ("absl", "jax._src.xla_bridge")
+
+
+def quiet_library_logs() -> None:
+    """Raises orbax's and JAX's backend loggers to WARNING, so a run's output stays readable.
+    Called when a run or the evaluation command starts, never at import."""
+    for name in _QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+
+def _pack(tree: Any) -> dict[str, Any]:
+    """The non-empty leaves by key path (orbax cannot store zero-size arrays, e.g. the contact
+    buffers of a model without contacts)."""
+    leaves = jax.tree_util.tree_flatten_with_path(tree)[0]
+    return {jax.tree_util.keystr(path): x for path, x in leaves if x.size}
+
+
+def _unpack(packed: dict[str, Any], like: Any) -> Any:
+    leaves, treedef = jax.tree_util.tree_flatten_with_path(like)
+    out = [
+        packed[jax.tree_util.keystr(path)] if x.size else jnp.zeros(x.shape, x.dtype) for path, x in leaves
+    ]
+    return jax.tree_util.tree_unflatten(treedef, out)
+
+
+def _target(abstract: Any) -> dict[str, jax.ShapeDtypeStruct]:
+    """What to restore each packed leaf as: its shape, dtype and a sharding on THIS process's
+    devices. A leaf that carries a sharding (a live state laid out for this run's mesh) keeps
+    it; an abstract leaf (``jax.eval_shape``) goes to the first local device. Without a target
+    sharding orbax re-creates the saving run's layout, which fails on another device count."""
+    default = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+
+    def one(x):
+        sharding = getattr(x, "sharding", None) or default
+        return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
+
+    return jax.tree.map(one, _pack(abstract))
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint that cannot be restored into this run; the message says why."""
+
+
+class ConfigMismatch(CheckpointError):
+    """The checkpoint belongs to a run with other identity settings (env, algo, network, seed)."""
+
+
+class UnreadableCheckpoint(CheckpointError):
+    """The checkpoint's files cannot be read back (corrupt, truncated, or partly deleted)."""
+
+
+class Checkpointer:
+    """Saves and restores ``(state, meta)`` under ``directory`` (one sub-folder per chunk)."""
+
+    def __init__(self, directory: str | Path, keep: int = 3):
+        self.directory = Path(directory).absolute()
+        options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
+        self._manager = ocp.CheckpointManager(self.directory, options=options)
+
+    def latest_step(self) -> int | None:
+        return self._manager.latest_step()
+
+    def save(self, step: int, state: Any, meta: dict) -> None:
+        """Saves and waits until the checkpoint is complete on disk."""
+        args = ocp.args.Composite(state=ocp.args.StandardSave(_pack(state)), meta=ocp.args.JsonSave(meta))
+        self._manager.save(step, args=args, force=True)
+        self._manager.wait_until_finished()
+
+    def steps(self) -> list[int]:
+        """The saved steps, newest first."""
+        return sorted(self._manager.all_steps(), reverse=True)
+
+    def read_meta(self, step: int | None = None) -> tuple[int, dict]:
+        step = self._require_step(step)
+        try:
+            out = self._manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
+        except Exception as e:  # orbax raises many types for unreadable files
+            raise UnreadableCheckpoint(
+                f"checkpoint {self.directory / str(step)} is unreadable: {_first_line(e)}"
+            ) from None
+        return step, dict(out["meta"])
+
+    def restore_newest(self, attempt: Callable[[int], T], step: int | None = None) -> T:
+        """``attempt(step)`` for ``step``, or (``step=None``) for the newest checkpoint it succeeds
+        on: an unreadable newest checkpoint (a crash mid-write outside orbax's atomic rename, a
+        disk error, a deleted file) falls back to the one before it, saying so on stderr, so
+        one bad file never blocks a resume or an evaluation. A configuration mismatch is not
+        a reason to fall back: it is raised at once.
+        """
+        with _without_closed_loop_noise():
+            return self._restore_newest(attempt, step)
+
+    def _restore_newest(self, attempt: Callable[[int], T], step: int | None) -> T:
+        if step is not None:
+            return attempt(step)
+        steps = self.steps()
+        if not steps:
+            raise CheckpointError(f"no checkpoint found in {self.directory}")
+        errors = []
+        for s in steps:
+            try:
+                out = attempt(s)
+            except UnreadableCheckpoint as e:
+                errors.append(str(e))
+                continue
+            if errors:
+                print(
+                    f"[fastrl] warning: {len(errors)} newer checkpoint(s) could not be read, using step "
+                    f"{s} instead:\n  " + "\n  ".join(errors),
+                    file=sys.stderr,
+                )
+            return out
+        raise UnreadableCheckpoint(
+            f"no checkpoint in {self.directory} can be read:\n  " + "\n  ".join(errors)
+        )
+
+    def restore(self, abstract_state: Any, config: dict, step: int | None = None) -> tuple[Any, dict]:
+        """Restores the state saved at ``step`` (default: latest) for a run configured as ``config``.
+
+        Raises:
+          CheckpointError: no checkpoint, an incompatible config (listing each differing key),
+            mismatched array shapes, or unreadable/corrupt files.
+        """
+        step, meta = self.read_meta(step)
+        diffs = identity_diff(meta.get("config", {}), config)
+        if diffs:
+            raise ConfigMismatch(
+                f"checkpoint {self.directory / str(step)} was made with a different configuration; "
+                "resume with the same env/algo/network/seed settings, or start a new run. Differences "
+                "(saved -> now):\n  " + "\n  ".join(diffs)
+            )
+        target = _target(abstract_state)
+        try:
+            out = self._manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(target)))
+        except Exception as e:
+            raise UnreadableCheckpoint(
+                f"checkpoint {self.directory / str(step)} could not be restored (damaged files, or "
+                f"saved by an incompatible fastrl version): {type(e).__name__}: {_first_line(e)}"
+            ) from None
+        return _unpack(out["state"], abstract_state), meta
+
+    def _require_step(self, step: int | None) -> int:
+        if step is None:
+            step = self._manager.latest_step()
+        if step is None:
+            raise CheckpointError(f"no checkpoint found in {self.directory}")
+        if step not in self._manager.all_steps():
+            raise CheckpointError(f"no checkpoint of step {step} in {self.directory}; saved: {self.steps()}")
+        return step
+
+    def set_aside_after(self, step: int, aside_root: Path) -> Path | None:
+        """Moves every saved step newer than ``step`` into a new ``aside_root/<time>/`` folder
+        (returned; None when there was none), so a run resumed from ``step`` can save those step
+        numbers again without deleting anything."""
+        newer = [s for s in self.steps() if s > step]
+        if not newer:
+            return None
+        aside = aside_root / time.strftime("%Y-%m-%d_%H-%M-%S")
+        n = 1
+        while aside.exists():
+            aside, n = aside_root / f"{time.strftime('%Y-%m-%d_%H-%M-%S')}-{n}", n + 1
+        aside.mkdir(parents=True)
+        for s in newer:
+            shutil.move(str(self.directory / str(s)), str(aside / str(s)))
+        self._manager.reload()
+        return aside
+
+    def close(self) -> None:
+        self._manager.close()
+
+
+@contextlib.contextmanager
+def _without_closed_loop_noise():
+    """Holds back "RuntimeError: Event loop is closed" tracebacks while checkpoints are read.
+
+    After a failed restore, tensorstore completes the read's other pending futures on its own
+    threads and calls back into orbax's already-closed asyncio loop; each callback prints such a
+    traceback straight to the process's stderr, burying the one message that matters. The
+    stderr file descriptor is captured for the duration and written back without them.
+    """
+    try:
+        fd = sys.__stderr__.fileno()
+    except (AttributeError, OSError, ValueError):  # no real stderr (embedded interpreters)
+        yield
+        return
+    sys.__stderr__.flush()
+    saved = os.dup(fd)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), fd)
+        try:
+            yield
+        finally:
+            sys.__stderr__.flush()
+            os.dup2(saved, fd)
+            os.close(saved)
+            tmp.seek(0)
+            kept = _drop_loop_closed(tmp.read().decode(errors="replace"))
+            if kept:
+                sys.__stderr__.write(kept)
+                sys.__stderr__.flush()
+
+
+_LOOP_CLOSED = "RuntimeError: Event loop is closed"
+_LOOP_CLOSED_FRAMES = (
+    "asyncio/base_events.py",
+    "self._check_closed()",
+    "raise RuntimeError('Event loop is closed')",
+)
+
+
+def _drop_loop_closed(text: str) -> str:
+    """``text`` without the "Event loop is closed" tracebacks. Several threads print them at
+    once, so their lines interleave: the noise is removed line by line (its frames, its final
+    line, and one "Traceback" header per final line), and every other line is kept."""
+    lines = text.splitlines(keepends=True)
+    headers = sum(line.rstrip() == _LOOP_CLOSED for line in lines)
+    out = []
+    for line in lines:
+        if line.rstrip() == _LOOP_CLOSED or any(f in line for f in _LOOP_CLOSED_FRAMES):
+            continue
+        if headers and line.startswith("Traceback (most recent call last):"):
+            headers -= 1
+            continue
+        out.append(line)
+    return "".join(out)
+
+
+def _first_line(e: Exception) -> str:
+    """The gist of an orbax/tensorstore error: its first line, without the C++ stack dump that
+    tensorstore appends."""
+    text = str(e).strip().splitlines()
+    return text[0].split(" [tensorstore_spec")[0][:400] if text else type(e).__name__

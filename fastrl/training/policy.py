@@ -1,0 +1,96 @@
+"""Trained policies from run folders: ``fastrl.load_policy(RUN_DIR)``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+
+from fastrl import agents
+from fastrl.training import scale
+from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError
+from fastrl.training.config import RunConfig
+
+__all__ = [
+    "load_policy",
+    "load_run",
+]
+
+
+def load_run(run_dir: str | Path, step: int | None = None, agent: int | str | None = None):
+    """(RunConfig, env, learner, state) of a run's checkpoint at ``step`` (default: the newest
+    that can be read; an unreadable newer one is reported on stderr and skipped).
+
+    The state is placed on this process's devices, whatever device count the run trained on.
+
+    A batch run (``train.num_seeds > 1`` or a ``train.vmap_sweep``) holds several agents in one
+    checkpoint: pick one with ``agent`` (its index or tag, e.g. ``0`` or ``"000-seed0"``), or pass
+    the agent's own folder ``RUN_DIR/agents/<tag>``. The returned config and state are that
+    agent's, as if it had been trained alone.
+    """
+    run_dir = Path(run_dir)
+    if not (run_dir / CHECKPOINT_DIR).is_dir() and run_dir.parent.name == "agents":
+        run_dir, agent = run_dir.parent.parent, run_dir.name if agent is None else agent
+    if not (run_dir / CHECKPOINT_DIR).is_dir():
+        raise CheckpointError(f"{run_dir} is not a fastrl run folder (no {CHECKPOINT_DIR}/ inside)")
+    ckpt = Checkpointer(run_dir / CHECKPOINT_DIR)
+    try:
+        return ckpt.restore_newest(lambda s: _restore_agent(ckpt, run_dir, s, agent), step)
+    finally:
+        ckpt.close()
+
+
+def _restore_agent(ckpt: Checkpointer, run_dir: Path, step: int, agent: int | str | None):
+    """``load_run`` for one saved step (the config is the one saved with it)."""
+    step, meta = ckpt.read_meta(step)
+    config = meta["config"]
+    rc = RunConfig.from_dict(config)
+    env = rc.env.make()
+    specs = scale.expand(rc)
+    index = _agent_index(run_dir, specs, agent)
+    learner, key = scale.run_learner(rc, specs, env, 1, None)
+    state, _ = ckpt.restore(jax.eval_shape(learner.init, key), config, step)
+    if len(specs) == 1:
+        return rc, env, learner, state
+    one = specs[index].config
+    learner = agents.make_learner(one.algo_name, one.algo, env, one.network, 1)
+    return one, env, learner, jax.tree.map(lambda x: x[index], state)
+
+
+def _agent_index(run_dir: Path, specs: list[scale.AgentSpec], agent: int | str | None) -> int:
+    """The index of the agent ``agent`` (index, tag or None) names among a run's ``specs``."""
+    tags = [spec.tag for spec in specs]
+    if len(specs) == 1:
+        if agent not in (None, 0, tags[0]):
+            raise CheckpointError(f"{run_dir} holds one agent; agent={agent!r} does not name it")
+        return 0
+    if agent is None:
+        raise CheckpointError(
+            f"{run_dir} holds a batch of {len(specs)} agents ({', '.join(tags)}); choose one: "
+            f"load_policy(run_dir, agent=0), python -m fastrl.evaluate RUN_DIR --agent 0, or the "
+            f"agent's folder {run_dir / 'agents' / tags[0]}"
+        )
+    index = tags.index(agent) if agent in tags else agent
+    if not isinstance(index, int) or not 0 <= index < len(specs):
+        raise CheckpointError(
+            f"agent={agent!r} is not one of {run_dir}'s agents: 0..{len(specs) - 1} or {tags}"
+        )
+    return index
+
+
+def load_policy(run_dir: str | Path, step: int | None = None, agent: int | str | None = None):
+    """A jittable deterministic ``policy(obs) -> action`` from a run's latest checkpoint (of a
+    batch run: one agent's, chosen as ``load_run`` describes).
+
+    The observation normaliser is folded in, so the function takes raw observations of the
+    env's layout (see the env's docstring) and returns actions within its action bounds. It
+    works for a single (obs_size,) observation or a batch (..., obs_size).
+    """
+    rc, _, learner, state = load_run(run_dir, step, agent)
+    params = learner.policy_params(state)
+
+    def policy(obs: jax.Array) -> jax.Array:
+        return learner.act(params, obs)
+
+    policy.run_config = rc.to_dict()
+    return policy

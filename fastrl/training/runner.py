@@ -1,0 +1,765 @@
+"""The training runner: a host loop over chunks, each chunk ONE compiled program.
+
+A chunk is ``lax.scan(learner.update, updates_per_chunk)`` jitted with the training state
+donated, so the simulator and the learner run without a host round trip per step. Between
+chunks the runner logs (TensorBoard, ``metrics.csv``, a progress line), evaluates the
+deterministic policy, and checkpoints. Ctrl-C asks the run to stop after the chunk in flight;
+it then saves a checkpoint and exits (a second Ctrl-C stops at once, without saving).
+
+``_train`` is the loop; each concern is a small piece it calls: the run's setup (``_setup``:
+agents, learner, layout), its start (``_start``: a fresh or restored state), the compiled chunk
+(``_compile_chunk``), divergence (``_diverged``), evaluation with the collapse watch and the
+``stop_at_return`` record (``_Evaluation``), viewer pages (``_ViewerPages``), outputs
+(``_Outputs``, ``_log_chunk``), checkpoints and the decision to stop (``_stop_reason``). A single
+run is a batch of one (``_Agents``): the loop never asks which it is.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import shutil
+import signal
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh
+
+from fastrl import agents, compile_cache, devices, reference, viewer
+from fastrl.agents.base import Learner
+from fastrl.devices import to_host
+from fastrl.report import plot_run
+from fastrl.training import scale
+from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError, quiet_library_logs
+from fastrl.training.config import RunConfig
+
+try:
+    import fcntl
+except ImportError:  # Windows: runs take no lock on their folder
+    fcntl = None
+
+__all__ = ["CHECKPOINT_DIR", "CollapseWatch", "RunDirError", "RunDirLock", "train"]
+
+
+def train(
+    cfg: RunConfig,
+    run_dir: str | Path,
+    resume: bool = False,
+    on_chunk=None,
+    resume_step: int | None = None,
+    record: dict[str, str] | None = None,
+) -> dict[str, Any]:
+    """Runs (or resumes) training into ``run_dir``.
+
+    With ``train.num_seeds > 1`` or a ``train.vmap_sweep`` the run is a batch of agents in one
+    program (``fastrl.training.scale``): each agent logs into ``run_dir/agents/<tag>/`` (its config,
+    metrics.csv, TensorBoard events, curve), and one checkpoint holds them all.
+
+    Args:
+      cfg: the typed run config.
+      run_dir: the run's folder (config, checkpoints, logs, curve).
+      resume: continue from the newest checkpoint in ``run_dir`` that can be read (an unreadable
+        newer one is reported and set aside), or from ``resume_step``.
+      on_chunk: optional callback ``(chunk, row)`` after every chunk (tests use it); for a batch
+        ``row`` is the mean over agents and ``row["agents"]`` holds each agent's row.
+      resume_step: with ``resume``, the chunk to continue from; newer checkpoints are moved
+        to ``run_dir/checkpoints_set_aside/`` (never deleted).
+      record: ``{relative path: text}`` written into ``run_dir`` with ``config.json`` once the
+        run owns the folder (the command line's record of itself, e.g. ``.hydra/overrides.yaml``).
+
+    Nothing is written into ``run_dir`` before the run is known to be valid: a rejected start
+    (the folder holds another run's checkpoints, the config differs from the checkpoint's, the
+    folder is in use by another process) leaves every file as it was. A run holds a lock on its
+    folder while it runs.
+    Returns:
+      A summary: status ("done", "stopped", "diverged", or "reached" when every agent's
+      evaluation return reached ``train.stop_at_return``), ``interrupted`` (stopped by
+      Ctrl-C), chunks, env_steps, final metrics; with
+      ``stop_at_return`` also ``reached``: per agent the chunk, env steps, training seconds and
+      return of its first evaluation at or above it (None where it never got there).
+    """
+    run_dir = Path(run_dir).absolute()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    quiet_library_logs()
+    with RunDirLock(run_dir):
+        ckpt = _open_checkpoints(cfg, run_dir, resume)
+        try:
+            return _train(cfg, run_dir, ckpt, resume, on_chunk, resume_step, record or {})
+        finally:
+            ckpt.close()
+
+
+def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_chunk, resume_step,
+           record: dict[str, str]) -> dict[str, Any]:  # fmt: skip
+    """The loop: one compiled chunk, then the host's pieces, until the budget or a stop."""
+    setup = _setup(cfg)
+    state, progress = _start(setup, ckpt, run_dir, resume, resume_step)
+    _claim_folder(run_dir, setup.config, record)  # only now does anything get written into it
+    state = _place(setup, state)
+    program = _compile_chunk(setup, state)
+    evaluation, pages = _Evaluation(setup), _ViewerPages(setup, run_dir)
+    _announce_start(setup, program, run_dir)
+    outs = _open_outputs(setup, run_dir, progress.chunk, setup.agents.env_steps(state))
+    status, row = "done", {}
+    try:
+        with _StopFlag() as stop:
+            while progress.chunk < setup.n_chunks:
+                t = time.perf_counter()
+                new_state, metrics = program.run(state)
+                rows = setup.agents.rows(metrics)
+                if _diverged(setup.agents, progress, rows):
+                    status, state = "diverged", new_state  # reported, never saved
+                    break
+                state, dt = new_state, time.perf_counter() - t
+                progress.advance(dt)
+                if evaluation.due(progress.chunk):
+                    evaluation(state, rows, progress)
+                pages(state, progress.chunk)
+                row = _log_chunk(setup, progress, rows, outs, state, dt, program.compile_s)
+                if on_chunk is not None:
+                    on_chunk(progress.chunk, row)
+                ending = _stop_reason(setup, progress, stop.set)
+                _checkpoint(ckpt, setup, progress, state, ending is not None)
+                if ending:
+                    status = ending
+                    _announce_end(setup, progress, ending, stop.set, run_dir)
+                    break
+    finally:
+        for out in outs:
+            out.plot()
+            out.close()
+    return _summary(setup, progress, status, state, row, program.compile_s, run_dir, stop.set)
+
+
+# ----------------------------------------------------------------------------- the run's parts
+
+
+@dataclasses.dataclass(frozen=True)
+class _Agents:
+    """The run's agents as the host sees them. A single run is a batch of one: only its state's
+    layout differs (a batch's leaves have a leading agent axis), and these methods hide that."""
+
+    specs: list[scale.AgentSpec]
+
+    @property
+    def n(self) -> int:
+        return len(self.specs)
+
+    @property
+    def batched(self) -> bool:
+        return self.n > 1
+
+    def who(self, i: int) -> str:
+        """How messages name agent ``i`` (nothing for a single run)."""
+        return f"agent {self.specs[i].tag} " if self.batched else ""
+
+    def rows(self, metrics: dict) -> list[dict[str, float]]:
+        """Per agent, the chunk's scalars from the (updates_per_chunk[, n_agents]) update metrics."""
+        if not self.batched:
+            return [_reduce(metrics)]
+        return [_reduce(jax.tree.map(lambda x, i=i: x[:, i], metrics)) for i in range(self.n)]
+
+    def eval_key(self, chunk: int) -> jax.Array:
+        """The key of the evaluation after ``chunk``: per agent, from its own seed."""
+        keys = [jax.random.fold_in(jax.random.PRNGKey(s.seed + 1), chunk) for s in self.specs]
+        return jnp.stack(keys) if self.batched else keys[0]
+
+    def env_steps(self, state, agent: int | None = None) -> int:
+        """Env steps so far: of one agent, or the most of any agent."""
+        steps = np.asarray(to_host(state.env_steps))
+        return int(steps.reshape(-1)[agent] if agent is not None else steps.max())
+
+    def result(self, per_agent: list) -> Any:
+        """A per-agent list as the summary reports it: the list for a batch, the value for one agent."""
+        return per_agent if self.batched else per_agent[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Setup:
+    """What a run is, decided before anything is traced: its env, agents, learner and layout."""
+
+    cfg: RunConfig
+    config: dict  # cfg.to_dict(), saved with every checkpoint
+    env: Any
+    agents: _Agents
+    learner: Learner
+    init_key: jax.Array
+    steps_per_update: int
+    n_chunks: int
+    mesh: Mesh | None
+    shardings: Any  # per-leaf NamedSharding of the state, or None on one device
+
+    @property
+    def chunk_steps(self) -> int:
+        """Env steps of one chunk (per agent)."""
+        return self.cfg.train.updates_per_chunk * self.steps_per_update
+
+
+def _setup(cfg: RunConfig) -> _Setup:
+    """The run's env, agents, learner (built for the run's total updates) and state layout."""
+    env = cfg.env.make()
+    specs = scale.expand(cfg)
+    # The learner is built twice: first to learn its env steps per update, then with the run's
+    # total updates (which set learning-rate schedules). Building is cheap; nothing is traced.
+    steps_per_update = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, 1).env_steps_per_update
+    total_updates = max(1, math.ceil(cfg.train.total_env_steps / steps_per_update))
+    k = cfg.train.updates_per_chunk
+    n_chunks = math.ceil(total_updates / k)
+    mesh = devices.mesh()
+    learner, init_key = scale.run_learner(cfg, specs, env, n_chunks * k, mesh)
+    shardings = None
+    if mesh is not None:
+        abstract = jax.eval_shape(learner.init, init_key)
+        shardings = scale.state_shardings(abstract, mesh, len(specs), learner.num_envs)
+    return _Setup(cfg=cfg, config=cfg.to_dict(), env=env, agents=_Agents(specs), learner=learner,
+                  init_key=init_key, steps_per_update=steps_per_update, n_chunks=n_chunks, mesh=mesh,
+                  shardings=shardings)  # fmt: skip
+
+
+@dataclasses.dataclass
+class _Progress:
+    """Where the run stands on the host. Saved in every checkpoint's metadata (``meta``), so a
+    resumed run judges collapse and ``stop_at_return`` as the run that stopped would have.
+
+    Fields:
+      chunk        chunks done
+      wall         seconds of training (chunks only: no compile, evaluation or saving)
+      watch        the collapse watch over evaluation returns
+      reached      per agent: where its evaluation return first reached train.stop_at_return
+      diverged     per agent: its losses went non-finite in this invocation (never saved)
+      start_chunk  the chunk this invocation started from
+    """
+
+    chunk: int
+    wall: float
+    watch: CollapseWatch
+    reached: list[dict | None]
+    diverged: list[bool]
+    start_chunk: int
+
+    @classmethod
+    def fresh(cls, n_agents: int) -> _Progress:
+        return cls(0, 0.0, CollapseWatch(n_agents), [None] * n_agents, [False] * n_agents, 0)
+
+    @classmethod
+    def from_meta(cls, meta: dict, n_agents: int) -> _Progress:
+        chunk = int(meta["chunk"])
+        watch = CollapseWatch(n_agents, history=meta.get("eval_history"))
+        reached = list(meta.get("reached") or [None] * n_agents)
+        return cls(chunk, float(meta["wall_s"]), watch, reached, [False] * n_agents, chunk)
+
+    def advance(self, seconds: float) -> None:
+        self.chunk += 1
+        self.wall += seconds
+
+    def meta(self, config: dict, env_steps: int) -> dict:
+        """The checkpoint's metadata: the config and this position."""
+        return {"config": config, "chunk": self.chunk, "env_steps": env_steps, "wall_s": self.wall,
+                "eval_history": self.watch.history(), "reached": self.reached}  # fmt: skip
+
+
+def _open_checkpoints(cfg: RunConfig, run_dir: Path, resume: bool) -> Checkpointer:
+    """The run's checkpointer; a new run refuses a folder that holds another run's checkpoints."""
+    ckpt = Checkpointer(run_dir / CHECKPOINT_DIR, keep=cfg.checkpoint.keep)
+    if not resume and ckpt.latest_step() is not None:
+        ckpt.close()
+        raise CheckpointError(
+            f"{run_dir} already holds checkpoints of a run; continue it with resume={run_dir}, or "
+            "choose a new run dir (nothing was changed)"
+        )
+    return ckpt
+
+
+def _start(setup: _Setup, ckpt: Checkpointer, run_dir: Path, resume: bool, resume_step: int | None):
+    """The state and progress the run starts from: fresh, or restored from a checkpoint (newer
+    checkpoints than the one resumed are set aside)."""
+    init = setup.learner.init
+    jit_init = jax.jit(init) if setup.shardings is None else jax.jit(init, out_shardings=setup.shardings)
+    state = jit_init(setup.init_key)
+    if not resume:
+        return state, _Progress.fresh(setup.agents.n)
+    state, meta = ckpt.restore_newest(lambda step: ckpt.restore(state, setup.config, step), resume_step)
+    progress = _Progress.from_meta(meta, setup.agents.n)
+    _set_aside_after(ckpt, run_dir, progress.chunk)
+    print(f"[fastrl] resumed {run_dir} at chunk {progress.chunk} ({int(meta['env_steps']):,d} env steps)")
+    return state, progress
+
+
+def _claim_folder(run_dir: Path, config: dict, record: dict[str, str]) -> None:
+    """Writes the run's config and the command line's record: the run is valid and owns its folder."""
+    _write_text(run_dir / "config.json", json.dumps(config, indent=2))
+    for name, text in record.items():
+        _write_text(run_dir / name, text)
+
+
+def _place(setup: _Setup, state):
+    """The state in fresh buffers (donation fails when two leaves share one), laid out for the mesh."""
+    state = jax.tree.map(lambda x: jnp.array(x, copy=True), state)
+    return state if setup.shardings is None else jax.device_put(state, setup.shardings)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Program:
+    """The compiled chunk and how compiling it went."""
+
+    run: Callable
+    compile_s: float
+    note: str
+
+
+def _compile_chunk(setup: _Setup, state) -> _Program:
+    """``lax.scan`` of ``updates_per_chunk`` updates, jitted once with the state donated."""
+    k, shardings, update = setup.cfg.train.updates_per_chunk, setup.shardings, setup.learner.update
+
+    def run_chunk(s):
+        s, metrics = jax.lax.scan(lambda s, _: update(s), s, None, length=k)
+        if shardings is not None:  # keep the layout fixed from chunk to chunk
+            s = jax.lax.with_sharding_constraint(s, shardings)
+        return s, metrics
+
+    t0, cache_before = time.perf_counter(), compile_cache.counts()
+    lowered = jax.jit(run_chunk, donate_argnums=0).lower(state)
+    trace_s = time.perf_counter() - t0
+    compiled = lowered.compile()
+    compile_s = time.perf_counter() - t0
+    cache_note = compile_cache.describe(cache_before, compile_cache.is_enabled())
+    return _Program(compiled, compile_s, f"{trace_s:.1f}s tracing, {cache_note}")
+
+
+def _announce_start(setup: _Setup, program: _Program, run_dir: Path) -> None:
+    """The run's first line (size, compile, devices) and, off the env's own physics, a note."""
+    cfg, n = setup.cfg, setup.agents.n
+    batch_note = f" x {n} agents in one program" if setup.agents.batched else ""
+    print(
+        f"[fastrl] {cfg.env.name} / {cfg.algo_name}: {setup.n_chunks} chunks x {cfg.train.updates_per_chunk} "
+        f"updates x {setup.steps_per_update:,d} env steps{batch_note}; chunk compiled in "
+        f"{program.compile_s:.1f}s ({program.note}) on {scale.describe(setup.shardings, setup.mesh)}; "
+        f"run dir {run_dir}"
+    )
+    if cfg.env.integrator is not None or cfg.env.solver_iterations is not None:
+        physics_note = reference.physics_label(setup.env)
+        print(f"[fastrl] evaluation returns are at this run's physics ({physics_note}); the score in the "
+              f"reference simulator: python -m fastrl.evaluate {run_dir} --reference")  # fmt: skip
+
+
+def _diverged(agents_: _Agents, progress: _Progress, rows: list[dict]) -> bool:
+    """Marks (and reports) the agents whose losses went non-finite in the chunk just run; True
+    when every agent has diverged, and the run stops without saving."""
+    for i, r in enumerate(rows):
+        losses = [v for key, v in r.items() if key.startswith("loss/")]
+        if not progress.diverged[i] and not all(math.isfinite(v) for v in losses):
+            progress.diverged[i] = True
+            print(f"[fastrl] {agents_.who(i)}training diverged (non-finite loss) in chunk "
+                  f"{progress.chunk + 1}", file=sys.stderr)  # fmt: skip
+    if not all(progress.diverged):
+        return False
+    print("[fastrl] the last good checkpoint is kept. Try a smaller learning rate or batch.", file=sys.stderr)
+    return True
+
+
+class _Evaluation:
+    """The deterministic policy's evaluation between chunks: ``eval/*`` into each agent's row,
+    then the collapse watch and the ``train.stop_at_return`` record."""
+
+    def __init__(self, setup: _Setup):
+        self.setup = setup
+        cfg, mesh = setup.cfg, setup.mesh
+        # A single run's evaluation steps its envs on every device (an Ant evaluation is 1000
+        # sequential steps of a small batch: on one of 2 CPU devices it took ~12 s per chunk).
+        split = not setup.agents.batched and mesh is not None and cfg.train.eval_envs % mesh.devices.size == 0
+        evaluate = agents.make_evaluator(
+            setup.env, setup.learner.act, cfg.train.eval_envs, mesh=mesh if split else None
+        )
+        self._evaluate = jax.jit(jax.vmap(evaluate) if setup.agents.batched else evaluate)
+
+    def due(self, chunk: int) -> bool:
+        """Whether chunk ``chunk`` ends with an evaluation (chunk 1 always does: metrics.csv
+        takes its columns from the first row), as does the last."""
+        every = self.setup.cfg.train.eval_every
+        return chunk in (1, self.setup.n_chunks) or bool(every and chunk % every == 0)
+
+    def __call__(self, state, rows: list[dict], progress: _Progress) -> None:
+        setup, n = self.setup, self.setup.agents.n
+        key = setup.agents.eval_key(progress.chunk)
+        ret, length, final = to_host(self._evaluate(setup.learner.policy_params(state), key))
+        ret, length = (np.asarray(x).reshape(n, -1) for x in (ret, length))
+        final = {k: np.asarray(v).reshape(n, -1) for k, v in final.items()}
+        for i, r in enumerate(rows):
+            r.update({"eval/episode_return": float(ret[i].mean()),
+                      "eval/episode_return_std": float(ret[i].std()),
+                      "eval/episode_length": float(length[i].mean())})  # fmt: skip
+            r.update({f"eval/{k}": float(v[i].mean()) for k, v in final.items()})
+        self._watch_collapse(rows, progress)
+        self._note_reached(state, rows, progress)
+
+    def _watch_collapse(self, rows: list[dict], progress: _Progress) -> None:
+        watch = progress.watch
+        for i, r in enumerate(rows):
+            was = watch.collapsed[i]
+            if watch.update(i, r["eval/episode_return"]) and not was:
+                who = self.setup.agents.who(i)
+                print(f"[fastrl] {who}training collapsed in chunk {progress.chunk}: eval return "
+                      f"{r['eval/episode_return']:.4g}, best {watch.best[i]:.4g}, first "
+                      f"{watch.first[i]:.4g}", file=sys.stderr)  # fmt: skip
+            r["train/collapsed"] = float(watch.collapsed[i])
+
+    def _note_reached(self, state, rows: list[dict], progress: _Progress) -> None:
+        target = self.setup.cfg.train.stop_at_return
+        if target is None:
+            return
+        for i, r in enumerate(rows):
+            if progress.reached[i] is None and r["eval/episode_return"] >= target:
+                steps = self.setup.agents.env_steps(state, i)
+                progress.reached[i] = {"chunk": progress.chunk, "env_steps": steps, "wall_s": progress.wall,
+                                       "eval_return": r["eval/episode_return"]}  # fmt: skip
+
+
+class _ViewerPages:
+    """A rollout's 3D page every ``logger.viewer_every`` chunks and at the last (agent 0 of a batch)."""
+
+    def __init__(self, setup: _Setup, run_dir: Path):
+        self.setup, self.run_dir, self.every = setup, run_dir, setup.cfg.logger.viewer_every
+        self.write = None
+        if self.every:
+            title = f"{setup.cfg.env.name} / {setup.cfg.algo_name}"
+            self.write = viewer.make_run_writer(
+                setup.env, setup.learner.act, title, batched=setup.agents.batched
+            )
+
+    def __call__(self, state, chunk: int) -> None:
+        if self.write is None or not (chunk == self.setup.n_chunks or chunk % self.every == 0):
+            return
+        params = to_host(self.setup.learner.policy_params(state))  # every process gathers
+        if jax.process_index() == 0:
+            self.write(self.run_dir, chunk, params, jax.random.PRNGKey(self.setup.cfg.seed + 1))
+
+
+def _open_outputs(setup: _Setup, run_dir: Path, chunk: int, env_steps: int) -> list[_Outputs]:
+    """Each agent's outputs: the run folder's own for a single run, ``agents/<tag>/`` (with the
+    agent's own config.json) for each agent of a batch."""
+    if not setup.agents.batched:
+        return [_Outputs(run_dir, setup.cfg, chunk, env_steps)]
+    outs = []
+    for spec in setup.agents.specs:
+        agent_dir = run_dir / "agents" / spec.tag
+        agent_dir.mkdir(parents=True, exist_ok=True)
+        (agent_dir / "config.json").write_text(json.dumps(spec.config.to_dict(), indent=2))
+        outs.append(_Outputs(agent_dir, spec.config, chunk, env_steps))
+    return outs
+
+
+def _log_chunk(setup: _Setup, progress: _Progress, rows: list[dict], outs: list[_Outputs], state,
+               dt: float, compile_s: float) -> dict:  # fmt: skip
+    """Completes and writes each agent's row; prints and returns the run's row (a batch's means)."""
+    for i, (r, out) in enumerate(zip(rows, outs, strict=True)):
+        r.update(chunk=progress.chunk, env_steps=setup.agents.env_steps(state, i), wall_s=progress.wall,
+                 time_unix=time.time())  # fmt: skip
+        r["perf/env_steps_per_s"] = setup.chunk_steps / dt
+        r["perf/compile_s"] = compile_s
+        if setup.agents.batched:
+            r["train/diverged"] = float(progress.diverged[i])
+        out.log(r)
+    row = _mean_row(rows, setup.agents.n) if setup.agents.batched else rows[0]
+    if setup.cfg.logger.progress and jax.process_index() == 0:
+        print(_progress(row, setup.n_chunks * setup.chunk_steps, progress.wall), flush=True)
+    return row
+
+
+def _checkpoint(ckpt: Checkpointer, setup: _Setup, progress: _Progress, state, ending: bool) -> None:
+    """Saves the state after the chunk just done when the run ends here, at the last chunk and
+    every ``checkpoint.every`` chunks."""
+    chunk = progress.chunk
+    if ending or chunk == setup.n_chunks or chunk % setup.cfg.checkpoint.every == 0:
+        ckpt.save(chunk, state, progress.meta(setup.config, setup.agents.env_steps(state)))
+
+
+def _stop_reason(setup: _Setup, progress: _Progress, interrupted: bool) -> str | None:
+    """Why the run ends after this chunk, before its budget: "reached" (every agent's evaluation
+    return reached ``train.stop_at_return``), "stopped" (Ctrl-C, ``train.stop_after_chunks``),
+    or None to go on."""
+    train = setup.cfg.train
+    if train.stop_at_return is not None and all(x is not None for x in progress.reached):
+        return "reached"
+    after = train.stop_after_chunks
+    if interrupted or (after is not None and progress.chunk - progress.start_chunk >= after):
+        return "stopped"
+    return None
+
+
+def _announce_end(setup: _Setup, progress: _Progress, ending: str, interrupted: bool, run_dir: Path) -> None:
+    train = setup.cfg.train
+    if ending == "reached":
+        who = "every agent's" if setup.agents.batched else "the"
+        print(f"[fastrl] {who} evaluation return reached train.stop_at_return={train.stop_at_return:g} by "
+              f"chunk {progress.chunk} ({progress.wall:.0f}s of training); stopping", flush=True)  # fmt: skip
+        return
+    why = "Ctrl-C" if interrupted else f"train.stop_after_chunks={train.stop_after_chunks}"
+    print(f"[fastrl] stopped by {why} after chunk {progress.chunk} of {setup.n_chunks}, checkpoint saved; "
+          f"continue with: python -m fastrl.train resume={run_dir}", flush=True)  # fmt: skip
+
+
+def _summary(setup: _Setup, progress: _Progress, status: str, state, row: dict, compile_s: float,
+             run_dir: Path, interrupted: bool) -> dict[str, Any]:  # fmt: skip
+    """What ``train`` returns (see its docstring)."""
+    agents_, watch = setup.agents, progress.watch
+    summary = {"status": status, "chunks": progress.chunk, "env_steps": agents_.env_steps(state),
+               "compile_s": compile_s, "wall_s": progress.wall, "last": row, "run_dir": str(run_dir),
+               "interrupted": interrupted}  # fmt: skip
+    summary["collapsed"] = agents_.result(watch.collapsed)
+    summary["best_eval_return"] = agents_.result(watch.best)
+    if setup.cfg.train.stop_at_return is not None:
+        summary["reached"] = agents_.result(progress.reached)
+    if agents_.batched:
+        tags = [s.tag for s in agents_.specs]
+        summary["agents"] = tags
+        summary["diverged_agents"] = [t for t, d in zip(tags, progress.diverged, strict=True) if d]
+        summary["collapsed_agents"] = [t for t, c in zip(tags, watch.collapsed, strict=True) if c]
+    return summary
+
+
+# ----------------------------------------------------------------------------- host helpers
+
+
+class _StopFlag:
+    """First SIGINT sets the flag (stop after this chunk); the second raises as usual."""
+
+    def __init__(self):
+        self.set = False
+        self._previous = None
+
+    def __enter__(self):
+        if (
+            signal.getsignal(signal.SIGINT) is not None
+            and threading.current_thread() is threading.main_thread()
+        ):
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        if self.set:
+            raise KeyboardInterrupt
+        self.set = True
+        print("\n[fastrl] Ctrl-C: stopping after this chunk and saving a checkpoint (again to abort)",
+              file=sys.stderr, flush=True)  # fmt: skip
+
+    def __exit__(self, *exc):
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+
+def _reduce(metrics: dict) -> dict[str, float]:
+    """Per-chunk scalars from the (updates_per_chunk,) stacked update metrics."""
+    m = {k: np.asarray(v) for k, v in to_host(metrics).items()}
+    out = {}
+    episodes = float(m.pop("train/episodes").sum())
+    ret_sum = float(m.pop("train/episode_return_sum").sum())
+    out["train/episodes"] = episodes
+    if episodes > 0:
+        out["train/episode_return"] = ret_sum / episodes
+    for k, v in m.items():
+        out[k] = float(np.mean(v))
+    return out
+
+
+class _Outputs:
+    """TensorBoard, metrics.csv and the curve PNG of one run folder."""
+
+    def __init__(self, run_dir: Path, cfg: RunConfig, resumed_chunk: int, env_steps: int):
+        if jax.process_index() != 0:  # multi-host runs: one process writes the run's outputs
+            quiet = dict(tensorboard=False, csv=False, plot=False, progress=False)
+            cfg = dataclasses.replace(cfg, logger=dataclasses.replace(cfg.logger, **quiet))
+        self.run_dir, self.cfg = run_dir, cfg
+        self.csv_path = run_dir / "metrics.csv"
+        self.writer = None
+        if cfg.logger.tensorboard:
+            from tensorboardX import SummaryWriter
+
+            self.writer = SummaryWriter(str(run_dir / "tb"), purge_step=env_steps if resumed_chunk else None)
+        if cfg.logger.csv and self.csv_path.exists():
+            self._truncate_csv(resumed_chunk)
+
+    def _truncate_csv(self, chunk: int) -> None:
+        """Drops rows logged after the checkpoint being resumed, so the curve has no duplicates."""
+        with self.csv_path.open() as f:
+            rows = list(csv.DictReader(f))
+        if not rows:
+            return
+        fields = list(rows[0])
+        keep = [r for r in rows if int(r["chunk"]) <= chunk]
+        with self.csv_path.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fields)
+            w.writeheader()
+            w.writerows(keep)
+
+    def log(self, row: dict[str, float]) -> None:
+        step = int(row["env_steps"])
+        if self.writer is not None:
+            for k, v in row.items():
+                if "/" in k and math.isfinite(v):
+                    self.writer.add_scalar(k, v, step)
+            self.writer.flush()
+        if self.cfg.logger.csv:
+            new = not self.csv_path.exists()
+            fields = None if new else next(csv.reader(self.csv_path.open()))
+            fields = fields or list(row)
+            with self.csv_path.open("a", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+                if new:
+                    w.writeheader()
+                w.writerow({k: row.get(k, "") for k in fields})
+
+    def plot(self) -> None:
+        if not (self.cfg.logger.plot and self.cfg.logger.csv and self.csv_path.exists()):
+            return
+        plot_run(
+            self.csv_path, self.run_dir / "curve.png", title=f"{self.cfg.env.name} / {self.cfg.algo_name}"
+        )
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def _progress(row: dict, total_steps: int, elapsed: float) -> str:
+    steps = int(row["env_steps"])
+    frac = min(1.0, steps / total_steps)
+    rate = row.get("perf/env_steps_per_s", float("nan"))
+    eta = (total_steps - steps) / rate if rate and rate > 0 else float("nan")
+    bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+    ret = row.get("eval/episode_return", row.get("train/episode_return", float("nan")))
+    which = "eval" if "eval/episode_return" in row else "train"
+    return (
+        f"[{bar}] {100 * frac:5.1f}% {steps:>11,d} steps | {rate:>9,.0f} steps/s | "
+        f"{which} return {ret:9.2f} | {elapsed:7.0f}s elapsed, ETA {eta:6.0f}s"
+    )
+
+
+class RunDirError(RuntimeError):
+    """The run folder cannot be used (another process is running in it); the message says why."""
+
+
+class RunDirLock:
+    """Exclusive use of a run folder while a run writes into it.
+
+    An ``flock`` on ``RUN_DIR/.lock``, which the OS releases when the process ends, however it
+    ends, so a crashed run never leaves the folder locked. A second run started on the same
+    folder (two runs in the same second, or a resume while the run is still going) fails at
+    once, before writing anything. Only process 0 of a multi-host run takes it (the others
+    share the folder), and where ``fcntl`` does not exist (Windows) no lock is taken.
+    """
+
+    def __init__(self, run_dir: Path):
+        self.path = run_dir / ".lock"
+        self._file = None
+
+    def __enter__(self):
+        if fcntl is None or jax.process_index() != 0:
+            return self
+        f = self.path.open("a+")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.seek(0)
+            owner = f.read().strip() or "another process"
+            f.close()
+            raise RunDirError(
+                f"{self.path.parent} is in use by another fastrl run ({owner}); wait for it to end or "
+                "choose another run dir (nothing was changed)"
+            ) from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
+        f.flush()
+        self._file = f
+        return self
+
+    def __exit__(self, *exc):
+        if self._file is not None:
+            self._file.close()  # closing releases the flock
+            self._file = None
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Writes ``text`` to ``path`` through a temporary file and a rename, so a crash mid-write
+    never leaves a half-written file in place of a good one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _set_aside_after(ckpt: Checkpointer, run_dir: Path, step: int) -> None:
+    """Moves the checkpoints newer than ``step`` (unreadable ones, or a branch the user resumed
+    from before) and a copy of ``metrics.csv`` out of the way, into
+    ``run_dir/checkpoints_set_aside/<time>/``: the resumed run will save those step numbers
+    again, and nothing a user saved is deleted."""
+    aside = ckpt.set_aside_after(step, run_dir / "checkpoints_set_aside")
+    if aside is None:
+        return
+    if (run_dir / "metrics.csv").exists():
+        shutil.copy2(run_dir / "metrics.csv", aside / "metrics.csv")
+    print(f"[fastrl] checkpoints after chunk {step} moved to {aside}", file=sys.stderr)
+
+
+class CollapseWatch:
+    """Flags agents whose evaluation return collapsed: after improving on the first evaluation by
+    a real margin (``min_gain`` of the first return's size, plus 1), the latest evaluation fell
+    back more than ``fraction`` of the way from the best to the first, and by more than
+    ``min_fall`` of the best return's size (plus 1). The last condition keeps the ordinary
+    wobble of a task with a large baseline from counting: the Ant earns ~1000 for standing,
+    and a policy going 944 -> 1113 -> 988 has not collapsed. The gain must be real for the same
+    reason: an untrained HalfCheetah scores about -160 to -210, and -180 -> -160 -> -208 (a gain of
+    12%) is noise, not a policy that learned and collapsed; the Ant's 944 -> 1113 (18%) is real.
+    A collapsed run keeps training (it may recover); the flag is logged as ``train/collapsed``
+    and in the summary. The history is part of the checkpoint's metadata, so a resumed run
+    judges the same way."""
+
+    def __init__(self, n_agents: int, fraction=0.5, min_gain=0.15, min_fall=0.25, history=None):
+        self.fraction, self.min_gain, self.min_fall = fraction, min_gain, min_fall
+        h = history or {}
+        self.first = list(h.get("first", [None] * n_agents))
+        self.best = list(h.get("best", [None] * n_agents))
+        self.collapsed = list(h.get("collapsed", [False] * n_agents))
+        self.ever = list(h.get("ever", [False] * n_agents))
+
+    def update(self, i: int, ret: float) -> bool:
+        """Records agent ``i``'s evaluation return; True when it is collapsed now."""
+        if not math.isfinite(ret):
+            return self.collapsed[i]
+        if self.first[i] is None:
+            self.first[i] = self.best[i] = ret
+        self.best[i] = max(self.best[i], ret)
+        gain = self.best[i] - self.first[i]
+        real = gain > self.min_gain * abs(self.first[i]) + 1.0
+        fall = self.best[i] - ret
+        big = fall > self.min_fall * abs(self.best[i]) + 1.0
+        self.collapsed[i] = bool(real and big and fall > self.fraction * gain)
+        self.ever[i] = self.ever[i] or self.collapsed[i]
+        return self.collapsed[i]
+
+    def history(self) -> dict:
+        return {"first": self.first, "best": self.best, "collapsed": self.collapsed, "ever": self.ever}
+
+
+def _mean_row(rows: list[dict], n_agents: int) -> dict:
+    """The batch's progress row: means over agents, total throughput over all of them."""
+    out: dict = {"agents": rows}
+    for key in rows[0]:
+        vals = [r[key] for r in rows if key in r and isinstance(r[key], int | float)]
+        vals = [v for v in vals if math.isfinite(v)]
+        if vals:
+            out[key] = float(np.mean(vals))
+    out["perf/env_steps_per_s"] = rows[0]["perf/env_steps_per_s"] * n_agents
+    out["env_steps"] = rows[0]["env_steps"]
+    return out
