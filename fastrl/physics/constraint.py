@@ -288,45 +288,49 @@ def _equality_rows(m: Model, d: Data, out) -> None:
     dees.append(jnp.where(eq.active, 1 / jnp.maximum(1e-15, (1 - imp) / imp * eq.diag), 0.0))
 
 
-def make_constraint(m: Model, d: Data) -> Data:
-    """Assembles every constraint row (friction loss, limits, contacts: MuJoCo's order).
+class _RowList:
+    """The constraint rows being assembled: Jacobians, violations, reference accelerations and
+    weights, appended block by block in MuJoCo's row order."""
 
-    Fills ``efc_*``, ``contact_id`` (the candidate in each contact slot) and ``ncon`` (candidates
-    within their margin; the rows are MuJoCo's exactly while ``ncon <= nconmax``).
-    """
-    dtype = d.qvel.dtype
-    jacs, poss, arefs, dees = [], [], [], []
+    def __init__(self, m: Model, d: Data):
+        self.m, self.d = m, d
+        self.parts = ([], [], [], [])  # jac, pos, aref, D
 
-    def add(jac, pos, margin, solref, solimp, diag, repeat=1, always=False):
+    def add(self, jac, pos, margin, solref, solimp, diag, repeat=1, always=False):
         """Rows of constraints that each own ``repeat`` rows sharing pos, margin and impedance;
         ``always``: active whatever the distance (friction loss), else while ``pos < margin``."""
+        jacs, poss, arefs, dees = self.parts
         r = pos - margin
         imp = impedance(solimp, r)
-        k, b = stiffness_damping(m, solref, solimp)
+        k, b = stiffness_damping(self.m, solref, solimp)
         regulariser = jnp.maximum(1e-15, (1 - imp) / imp * diag)
         rep = lambda x: jnp.repeat(x, repeat)  # noqa: E731
-        vel = matvec(jac, d.qvel)
+        vel = matvec(jac, self.d.qvel)
         jacs.append(jac)
         poss.append(rep(pos))
         arefs.append(-rep(b) * vel - rep(k * imp * r))
         active = True if always else rep(r < 0)
         dees.append(jnp.where(active, 1 / rep(regulariser), 0.0))
 
-    if m.eq_type.size:
-        _equality_rows(m, d, (jacs, poss, arefs, dees))
 
+def _friction_rows(m: Model, d: Data, rows: _RowList) -> None:
+    """One always-active row per dof, then per tendon, with friction loss."""
+    dtype = d.qvel.dtype
     fric = friction_dofs(m)
     if fric.size:
         zero = jnp.zeros(fric.size, dtype)
         jac = jnp.eye(m.nv, dtype=dtype)[fric]
-        add(jac, zero, zero, m.dof_solref[fric], m.dof_solimp[fric], m.dof_invweight0[fric], always=True)
-
+        rows.add(jac, zero, zero, m.dof_solref[fric], m.dof_solimp[fric], m.dof_invweight0[fric], always=True)
     ften = friction_tendons(m)
     if ften.size:
         zero = jnp.zeros(ften.size, dtype)
-        add(d.ten_J[ften], zero, zero, m.tendon_solref_fri[ften], m.tendon_solimp_fri[ften],
-            m.tendon_invweight0[ften], always=True)  # fmt: skip
+        rows.add(d.ten_J[ften], zero, zero, m.tendon_solref_fri[ften], m.tendon_solimp_fri[ften],
+                 m.tendon_invweight0[ften], always=True)  # fmt: skip
 
+
+def _limit_rows(m: Model, d: Data, rows: _RowList) -> None:
+    """One row per limited joint, then per limited tendon, for the nearer end of its range."""
+    dtype = d.qvel.dtype
     lim = limited_joints(m)
     if lim.size:
         # MuJoCo's row for the lower end is (J = +1, pos = q - lo), for the upper (-1, hi - q).
@@ -337,8 +341,7 @@ def make_constraint(m: Model, d: Data) -> Data:
         sign = jnp.where(lower, 1.0, -1.0).astype(dtype)
         jac = jnp.eye(m.nv, dtype=dtype)[dof] * sign[:, None]  # (nlim, nv)
         pos = jnp.where(lower, q - lo, hi - q)
-        add(jac, pos, m.jnt_margin[lim], m.jnt_solref[lim], m.jnt_solimp[lim], m.dof_invweight0[dof])
-
+        rows.add(jac, pos, m.jnt_margin[lim], m.jnt_solref[lim], m.jnt_solimp[lim], m.dof_invweight0[dof])
     lten = limited_tendons(m)
     if lten.size:  # as joint limits, with the tendon's length and Jacobian
         length = d.ten_length[lten]
@@ -346,59 +349,79 @@ def make_constraint(m: Model, d: Data) -> Data:
         lower = length - lo <= hi - length
         sign = jnp.where(lower, 1.0, -1.0).astype(dtype)
         pos = jnp.where(lower, length - lo, hi - length)
-        add(d.ten_J[lten] * sign[:, None], pos, m.tendon_margin[lten], m.tendon_solref_lim[lten],
-            m.tendon_solimp_lim[lten], m.tendon_invweight0[lten])  # fmt: skip
+        rows.add(d.ten_J[lten] * sign[:, None], pos, m.tendon_margin[lten], m.tendon_solref_lim[lten],
+                 m.tendon_solimp_lim[lten], m.tendon_invweight0[lten])  # fmt: skip
 
+
+def _contact_rows(m: Model, d: Data, rows: _RowList) -> list[jax.Array]:
+    """The contact slots' rows, condim group by condim group; returns each group's candidates."""
+    dtype = d.qvel.dtype
     layout = contact_layout(m)
     ids = []
-    if layout.size:
-        b1_all = m.geom_bodyid[m.pair_geom1[layout]]
-        b2_all = m.geom_bodyid[m.pair_geom2[layout]]
-        ancestors = tree.body_dof_ancestors(m)
-        moving1 = ancestors[b1_all].any()  # geom1 is often the static floor: no motion
-        tran_all = m.body_invweight0[b1_all, 0] + m.body_invweight0[b2_all, 0]
-        for dim, sel, nslot in contact_groups(m):
-            idx = select_contacts(m, d, sel, nslot)  # (nslot,) candidate of each slot
-            ids.append(idx)
-            pair = jnp.asarray(layout, jnp.int32)[idx]
-            pos = d.contact_pos[idx]
+    b1_all = m.geom_bodyid[m.pair_geom1[layout]]
+    b2_all = m.geom_bodyid[m.pair_geom2[layout]]
+    ancestors = tree.body_dof_ancestors(m)
+    moving1 = ancestors[b1_all].any()  # geom1 is often the static floor: no motion
+    tran_all = m.body_invweight0[b1_all, 0] + m.body_invweight0[b2_all, 0]
+    for dim, sel, nslot in contact_groups(m):
+        idx = select_contacts(m, d, sel, nslot)  # (nslot,) candidate of each slot
+        ids.append(idx)
+        pair = jnp.asarray(layout, jnp.int32)[idx]
+        pos = d.contact_pos[idx]
 
-            def slot_jacobian(bodies, idx=idx, pos=pos):  # bodies of all candidates -> the slots'
-                mask = jnp.asarray(ancestors[bodies], dtype)[idx]
-                return _point_jacobian(d, mask, d.subtree_com[jnp.asarray(m.body_rootid[bodies])[idx]], pos)
+        def slot_jacobian(bodies, idx=idx, pos=pos):  # bodies of all candidates -> the slots'
+            mask = jnp.asarray(ancestors[bodies], dtype)[idx]
+            return _point_jacobian(d, mask, d.subtree_com[jnp.asarray(m.body_rootid[bodies])[idx]], pos)
 
-            jac_p = slot_jacobian(b2_all)
+        jac_p = slot_jacobian(b2_all)
+        if moving1:
+            jac_p = jac_p - slot_jacobian(b1_all)
+        frame = d.contact_frame[idx]
+        jac_c = matmul(frame, jac_p)  # rows: normal, tangent1, tangent2
+        common = (d.contact_dist[idx], m.pair_margin[pair], m.pair_solref[pair], m.pair_solimp[pair])
+        tran = tran_all[idx]
+        if dim == 1:
+            rows.add(jac_c[:, 0], *common, tran)
+            continue
+        # The friction directions: the two tangents (translation), then for condim 4 the
+        # rotation about the normal (torsion), for 6 also about the tangents (rolling).
+        dirs = [jac_c[:, 1], jac_c[:, 2]]
+        if dim > 3:
+            mask_b = lambda bodies, idx=idx: jnp.asarray(ancestors[bodies], dtype)[idx]  # noqa: E731
+            jac_r = _rotation_jacobian(d, mask_b(b2_all))
             if moving1:
-                jac_p = jac_p - slot_jacobian(b1_all)
-            frame = d.contact_frame[idx]
-            jac_c = matmul(frame, jac_p)  # rows: normal, tangent1, tangent2
-            common = (d.contact_dist[idx], m.pair_margin[pair], m.pair_solref[pair], m.pair_solimp[pair])
-            tran = tran_all[idx]
-            if dim == 1:
-                add(jac_c[:, 0], *common, tran)
-                continue
-            # The friction directions: the two tangents (translation), then for condim 4 the
-            # rotation about the normal (torsion), for 6 also about the tangents (rolling).
-            dirs = [jac_c[:, 1], jac_c[:, 2]]
-            if dim > 3:
-                mask_b = lambda bodies, idx=idx: jnp.asarray(ancestors[bodies], dtype)[idx]  # noqa: E731
-                jac_r = _rotation_jacobian(d, mask_b(b2_all))
-                if moving1:
-                    jac_r = jac_r - _rotation_jacobian(d, mask_b(b1_all))
-                jac_rc = matmul(frame, jac_r)  # rows: about the normal, tangent1, tangent2
-                dirs += [jac_rc[:, 0]] if dim == 4 else [jac_rc[:, 0], jac_rc[:, 1], jac_rc[:, 2]]
-            jn = jac_c[:, 0]
-            if elliptic(m):
-                _elliptic_rows(m, d, jnp.stack([jn, *dirs], 1), pair, common, tran, (jacs, poss, arefs, dees))
-                continue
-            mu = m.pair_friction[pair, : dim - 1]
-            edges = []  # MuJoCo's pyramid edges: J_n +- mu_i J_i for each friction direction i
-            for i, ji in enumerate(dirs):
-                edges += [jn + mu[:, i : i + 1] * ji, jn - mu[:, i : i + 1] * ji]
-            edges = jnp.stack(edges, 1)
-            mu0 = mu[:, 0]
-            diag = 2 * mu0**2 * (1 + mu0**2) * tran / m.impratio
-            add(edges.reshape(-1, m.nv), *common, diag, repeat=2 * (dim - 1))
+                jac_r = jac_r - _rotation_jacobian(d, mask_b(b1_all))
+            jac_rc = matmul(frame, jac_r)  # rows: about the normal, tangent1, tangent2
+            dirs += [jac_rc[:, 0]] if dim == 4 else [jac_rc[:, 0], jac_rc[:, 1], jac_rc[:, 2]]
+        jn = jac_c[:, 0]
+        if elliptic(m):
+            _elliptic_rows(m, d, jnp.stack([jn, *dirs], 1), pair, common, tran, rows.parts)
+            continue
+        mu = m.pair_friction[pair, : dim - 1]
+        edges = []  # MuJoCo's pyramid edges: J_n +- mu_i J_i for each friction direction i
+        for i, ji in enumerate(dirs):
+            edges += [jn + mu[:, i : i + 1] * ji, jn - mu[:, i : i + 1] * ji]
+        edges = jnp.stack(edges, 1)
+        mu0 = mu[:, 0]
+        diag = 2 * mu0**2 * (1 + mu0**2) * tran / m.impratio
+        rows.add(edges.reshape(-1, m.nv), *common, diag, repeat=2 * (dim - 1))
+    return ids
+
+
+def make_constraint(m: Model, d: Data) -> Data:
+    """Assembles every constraint row (equality, friction loss, limits, contacts: MuJoCo's order).
+
+    Fills ``efc_*``, ``contact_id`` (the candidate in each contact slot) and ``ncon`` (candidates
+    within their margin; the rows are MuJoCo's exactly while ``ncon <= nconmax``).
+    """
+    rows = _RowList(m, d)
+    if m.eq_type.size:
+        _equality_rows(m, d, rows.parts)
+    _friction_rows(m, d, rows)
+    _limit_rows(m, d, rows)
+    layout = contact_layout(m)
+    ids = _contact_rows(m, d, rows) if layout.size else []
+    jacs, poss, arefs, dees = rows.parts
     if not jacs:
         return d
     out = d.replace(
