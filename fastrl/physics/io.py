@@ -361,13 +361,9 @@ def asset_solver_iterations(m: mujoco.MjModel) -> int:
     return int(value)
 
 
-def model_from_mujoco(
-    m: mujoco.MjModel,
-    integrator: str | None = None,
-    solver_iterations: int | None = None,
-    nconmax: int | None = None,
-) -> Model:
-    """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
+def _checked(m: mujoco.MjModel, integrator, solver_iterations, nconmax) -> tuple[Integrator, int]:
+    """Checks the arguments and the model (``_check_supported``); returns the integrator and the
+    solver's iteration count to use."""
     if solver_iterations is None:
         solver_iterations = asset_solver_iterations(m)
     if solver_iterations < 1:
@@ -383,15 +379,46 @@ def model_from_mujoco(
     if integrator is not None:
         if integrator not in _INTEGRATORS:
             raise ValueError(f"integrator={integrator!r}; choose one of {sorted(_INTEGRATORS)}")
-        integ = _INTEGRATORS[integrator]
-    elif m.opt.integrator in set(Integrator):
-        integ = Integrator(m.opt.integrator)
-    else:
-        name = mujoco.mjtIntegrator(m.opt.integrator).name
-        raise UnsupportedFeatureError(
-            f"integrator {name} is not implemented; pass integrator='euler', 'rk4' or "
-            "'implicitfast' to load_mjcf"
-        )
+        return _INTEGRATORS[integrator], solver_iterations
+    if m.opt.integrator in set(Integrator):
+        return Integrator(m.opt.integrator), solver_iterations
+    name = mujoco.mjtIntegrator(m.opt.integrator).name
+    raise UnsupportedFeatureError(
+        f"integrator {name} is not implemented; pass integrator='euler', 'rk4' or 'implicitfast' to load_mjcf"
+    )
+
+
+def _tendon_fields(m: mujoco.MjModel) -> dict:
+    """``Model``'s tendon fields: every tendon with MuJoCo's ids if any acts, else none."""
+    tens = np.arange(m.ntendon) if tendons_act(m) else np.zeros(0, np.int64)
+    wraps = np.arange(m.nwrap) if tens.size else np.zeros(0, np.int64)
+    limited = m.tendon_limited[tens] if limits_enabled(m) else np.zeros(tens.size, np.int32)
+    friction = np.flatnonzero(m.tendon_frictionloss[tens] > 0) if frictionloss_enabled(m) else []
+    i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
+    f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
+    return dict(
+        ntendon=int(tens.size), tendon_adr=i32(m.tendon_adr[tens]), tendon_num=i32(m.tendon_num[tens]),
+        wrap_type=i32(m.wrap_type[wraps]), wrap_objid=i32(m.wrap_objid[wraps]),
+        wrap_prm=np.asarray(m.wrap_prm[wraps], np.float64).copy(), tendon_limited=i32(limited),
+        armature_tendons=i32(np.flatnonzero(m.tendon_armature[tens] != 0)), friction_tendons=i32(friction),
+        tendon_stiffness=f(m.tendon_stiffness[tens]), tendon_damping=f(m.tendon_damping[tens]),
+        tendon_armature=f(m.tendon_armature[tens]), tendon_lengthspring=f(m.tendon_lengthspring[tens]),
+        tendon_range=f(m.tendon_range[tens]), tendon_margin=f(m.tendon_margin[tens]),
+        tendon_solref_lim=f(m.tendon_solref_lim[tens]), tendon_solimp_lim=f(m.tendon_solimp_lim[tens]),
+        tendon_frictionloss=f(m.tendon_frictionloss[tens]),
+        tendon_solref_fri=f(m.tendon_solref_fri[tens]), tendon_solimp_fri=f(m.tendon_solimp_fri[tens]),
+        tendon_invweight0=f(m.tendon_invweight0[tens]), tendon_length0=f(m.tendon_length0[tens]),
+    )  # fmt: skip
+
+
+def model_from_mujoco(
+    m: mujoco.MjModel,
+    integrator: str | None = None,
+    solver_iterations: int | None = None,
+    nconmax: int | None = None,
+) -> Model:
+    """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
+    integ, solver_iterations = _checked(m, integrator, solver_iterations, nconmax)
     obj = mujoco.mjtObj
     pairs = candidate_geom_pairs(m) if contacts_enabled(m) else []
     mixed = _mix_pair_params(m, pairs)
@@ -401,16 +428,13 @@ def model_from_mujoco(
         ncand = sum(PRIMITIVES[(int(m.geom_type[a]), int(m.geom_type[b]))][1] for a, b in pairs)
         nconmax = m.nconmax if m.nconmax > 0 else default_nconmax(ncand)
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
-    tens = np.arange(m.ntendon) if tendons_act(m) else np.zeros(0, np.int64)
-    wraps = np.arange(m.nwrap) if tens.size else np.zeros(0, np.int64)
-    tendon_limited = m.tendon_limited[tens] if limits_enabled(m) else np.zeros(tens.size, np.int32)
     eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
     f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
     gravity = m.opt.gravity * (0.0 if m.opt.disableflags & _DSBL.mjDSBL_GRAVITY else 1.0)
     return Model(
         nq=m.nq, nv=m.nv, nu=m.nu, nbody=m.nbody, njnt=m.njnt, ngeom=m.ngeom, nsite=m.nsite,
-        ntendon=int(tens.size),
+        **_tendon_fields(m),
         body_parentid=i32(m.body_parentid), body_rootid=i32(m.body_rootid),
         body_jntnum=i32(m.body_jntnum), body_jntadr=i32(m.body_jntadr),
         body_dofnum=i32(m.body_dofnum), body_dofadr=i32(m.body_dofadr),
@@ -428,13 +452,6 @@ def model_from_mujoco(
         actuator_ctrllimited=i32(m.actuator_ctrllimited),
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
-        tendon_adr=i32(m.tendon_adr[tens]), tendon_num=i32(m.tendon_num[tens]),
-        wrap_type=i32(m.wrap_type[wraps]), wrap_objid=i32(m.wrap_objid[wraps]),
-        wrap_prm=np.asarray(m.wrap_prm[wraps], np.float64).copy(), tendon_limited=i32(tendon_limited),
-        armature_tendons=i32(np.flatnonzero(m.tendon_armature[tens] != 0)),
-        friction_tendons=i32(
-            np.flatnonzero(m.tendon_frictionloss[tens] > 0) if frictionloss_enabled(m) else []
-        ),
         pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
@@ -461,13 +478,6 @@ def model_from_mujoco(
         pair_solimp=f(mixed["solimp"]), pair_solreffriction=f(mixed["solreffriction"]),
         pair_margin=f(mixed["margin"]), pair_gap=f(mixed["gap"]),
         jnt_solref=f(m.jnt_solref), jnt_solimp=f(m.jnt_solimp), jnt_margin=f(m.jnt_margin),
-        tendon_stiffness=f(m.tendon_stiffness[tens]), tendon_damping=f(m.tendon_damping[tens]),
-        tendon_armature=f(m.tendon_armature[tens]), tendon_lengthspring=f(m.tendon_lengthspring[tens]),
-        tendon_range=f(m.tendon_range[tens]), tendon_margin=f(m.tendon_margin[tens]),
-        tendon_solref_lim=f(m.tendon_solref_lim[tens]), tendon_solimp_lim=f(m.tendon_solimp_lim[tens]),
-        tendon_frictionloss=f(m.tendon_frictionloss[tens]),
-        tendon_solref_fri=f(m.tendon_solref_fri[tens]), tendon_solimp_fri=f(m.tendon_solimp_fri[tens]),
-        tendon_invweight0=f(m.tendon_invweight0[tens]), tendon_length0=f(m.tendon_length0[tens]),
         eq_data=f(m.eq_data[eqs]), eq_solref=f(m.eq_solref[eqs]), eq_solimp=f(m.eq_solimp[eqs]),
         body_invweight0=f(m.body_invweight0), dof_invweight0=f(m.dof_invweight0),
         impratio=f(m.opt.impratio),
