@@ -28,7 +28,8 @@ import numpy as np
 
 from fastrl.physics import equality, tree
 from fastrl.physics.collision_driver import contact_layout
-from fastrl.physics.math import cross, matmul, matvec
+from fastrl.physics.jacobian import point_jacobian, point_jacobian_masked, rotation_jacobian  # noqa: F401
+from fastrl.physics.math import matmul, matvec
 from fastrl.physics.types import Data, JointType, Model
 
 _DSBL = mujoco.mjtDisableBit
@@ -165,29 +166,6 @@ def sizes(m: Model) -> tuple[int, int]:
     """(ncon, nefc): candidate contacts and constraint rows; static for a model."""
     nrows = first_contact_row(m) + int(rows_per_slot(m).sum())
     return contact_layout(m).size, nrows
-
-
-def point_jacobian(m: Model, d: Data, bodies: np.ndarray, points: jax.Array) -> jax.Array:
-    """Translational Jacobians (n, 3, nv) of world points rigidly attached to ``bodies`` (n,).
-
-    From the com-based motion dofs: a point p moves with ``lin_d + ang_d x (p - c)`` per unit
-    velocity of every dof d that moves its body, c being its tree's centre of mass.
-    """
-    mask = jnp.asarray(tree.body_dof_ancestors(m)[bodies], points.dtype)  # (n, nv)
-    return _point_jacobian(d, mask, d.subtree_com[m.body_rootid[bodies]], points)
-
-
-def _rotation_jacobian(d: Data, mask: jax.Array) -> jax.Array:
-    """(n, 3, nv) rotational Jacobians of bodies given their dof masks (n, nv): a body turns
-    with the angular part of every dof that moves it."""
-    return jnp.swapaxes(d.cdof[None, :, :3] * mask[:, :, None], 1, 2)
-
-
-def _point_jacobian(d: Data, mask: jax.Array, com: jax.Array, points: jax.Array) -> jax.Array:
-    """``point_jacobian`` given each point's dof mask (n, nv) and its tree's com (n, 3)."""
-    ang, lin = d.cdof[:, :3], d.cdof[:, 3:]  # (nv, 3)
-    jac = lin[None] + cross(ang[None], (points - com)[:, None, :])  # (n, nv, 3)
-    return jnp.swapaxes(jac * mask[:, :, None], 1, 2)
 
 
 def select_contacts(m: Model, d: Data, candidates: np.ndarray, nslot: int) -> jax.Array:
@@ -371,7 +349,7 @@ def _contact_rows(m: Model, d: Data, rows: _RowList) -> list[jax.Array]:
 
         def slot_jacobian(bodies, idx=idx, pos=pos):  # bodies of all candidates -> the slots'
             mask = jnp.asarray(ancestors[bodies], dtype)[idx]
-            return _point_jacobian(d, mask, d.subtree_com[jnp.asarray(m.body_rootid[bodies])[idx]], pos)
+            return point_jacobian_masked(d, mask, d.subtree_com[jnp.asarray(m.body_rootid[bodies])[idx]], pos)
 
         jac_p = slot_jacobian(b2_all)
         if moving1:
@@ -388,9 +366,9 @@ def _contact_rows(m: Model, d: Data, rows: _RowList) -> list[jax.Array]:
         dirs = [jac_c[:, 1], jac_c[:, 2]]
         if dim > 3:
             mask_b = lambda bodies, idx=idx: jnp.asarray(ancestors[bodies], dtype)[idx]  # noqa: E731
-            jac_r = _rotation_jacobian(d, mask_b(b2_all))
+            jac_r = rotation_jacobian(d, mask_b(b2_all))
             if moving1:
-                jac_r = jac_r - _rotation_jacobian(d, mask_b(b1_all))
+                jac_r = jac_r - rotation_jacobian(d, mask_b(b1_all))
             jac_rc = matmul(frame, jac_r)  # rows: about the normal, tangent1, tangent2
             dirs += [jac_rc[:, 0]] if dim == 4 else [jac_rc[:, 0], jac_rc[:, 1], jac_rc[:, 2]]
         jn = jac_c[:, 0]

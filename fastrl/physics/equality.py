@@ -17,8 +17,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import math, tree
-from fastrl.physics.types import Data, JointType, Model
+from fastrl.physics import jacobian, math
+from fastrl.physics.types import Data, Model
 
 EQ = mujoco.mjtEq
 ROWS = {int(EQ.mjEQ_CONNECT): 3, int(EQ.mjEQ_WELD): 6, int(EQ.mjEQ_JOINT): 1, int(EQ.mjEQ_TENDON): 1}
@@ -97,49 +97,6 @@ def _anchors(m: Model, d: Data, idx: np.ndarray, weld: bool) -> tuple[jax.Array,
     return jnp.where(site, s1, by_body1), jnp.where(site, s2, by_body2)
 
 
-def _mask(m: Model, bodies: np.ndarray, dtype) -> jax.Array:
-    return jnp.asarray(tree.body_dof_ancestors(m)[bodies], dtype)  # (n, nv)
-
-
-def _point_jac(m: Model, d: Data, bodies: np.ndarray, points: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """(n, 3, nv) translational and rotational Jacobians of world points fixed to ``bodies``."""
-    mask = _mask(m, bodies, points.dtype)
-    com = d.subtree_com[m.body_rootid[bodies]]
-    ang, lin = d.cdof[:, :3], d.cdof[:, 3:]
-    jp = lin[None] + math.cross(ang[None], (points - com)[:, None, :])  # (n, nv, 3)
-    jr = jnp.broadcast_to(ang[None], jp.shape)
-    return jnp.swapaxes(jp * mask[..., None], 1, 2), jnp.swapaxes(jr * mask[..., None], 1, 2)
-
-
-def _point_jac_dot_v(m: Model, d: Data, bodies: np.ndarray, points: jax.Array):
-    """(n, 3) ``Jdot qvel`` of the translational and rotational Jacobians (mj_jacDot).
-
-    ``cdof_dot`` gives each dof axis' rate; a ball or free-rotation dof uses its own body's
-    velocity (``cvel x cdof``). The point's term also carries the axis sweeping past the point
-    as the point moves (``cdof x v_point``).
-    """
-    mask = _mask(m, bodies, points.dtype)
-    quat = np.zeros(m.nv, bool)
-    for j, t in enumerate(m.jnt_type):
-        a = m.jnt_dofadr[j]
-        if t == JointType.BALL:
-            quat[a : a + 3] = True
-        elif t == JointType.FREE:
-            quat[a + 3 : a + 6] = True
-    cdof_dot = d.cdof_dot
-    if quat.any():
-        own = math.cross_motion(d.cvel[m.dof_bodyid], d.cdof)
-        cdof_dot = jnp.where(jnp.asarray(quat)[:, None], own, cdof_dot)
-    com = d.subtree_com[m.body_rootid[bodies]]
-    offset = points - com  # (n, 3)
-    vel = d.cvel[bodies]
-    pvel = vel[:, 3:] + math.cross(vel[:, :3], offset)  # the point's velocity
-    w = mask * d.qvel[None]  # (n, nv)
-    rot = w @ cdof_dot[:, :3]
-    lin = w @ cdof_dot[:, 3:] + math.cross(rot, offset) + math.cross(w @ d.cdof[:, :3], pvel)
-    return lin, rot
-
-
 def _axis_quat(q: jax.Array, axis: jax.Array) -> jax.Array:
     """``q * (0, axis)`` (mju_mulQuatAxis)."""
     return math.quat_mul(q, jnp.concatenate([jnp.zeros_like(axis[..., :1]), axis], -1))
@@ -153,10 +110,10 @@ def _quat_axis(axis: jax.Array, q: jax.Array) -> jax.Array:
 def _connect(m: Model, d: Data, idx: np.ndarray):
     b1, b2 = _bodies(m, idx)
     p1, p2 = _anchors(m, d, idx, weld=False)
-    j1, _ = _point_jac(m, d, b1, p1)
-    j2, _ = _point_jac(m, d, b2, p2)
-    v1, _ = _point_jac_dot_v(m, d, b1, p1)
-    v2, _ = _point_jac_dot_v(m, d, b2, p2)
+    j1, _ = jacobian.point_and_rotation(m, d, b1, p1)
+    j2, _ = jacobian.point_and_rotation(m, d, b2, p2)
+    v1, _ = jacobian.point_jac_dot_v(m, d, b1, p1)
+    v2, _ = jacobian.point_jac_dot_v(m, d, b2, p2)
     tran = m.body_invweight0[b1, 0] + m.body_invweight0[b2, 0]
     return j1 - j2, p1 - p2, v1 - v2, jnp.repeat(tran[:, None], 3, 1)
 
@@ -168,10 +125,10 @@ def _weld(m: Model, d: Data, idx: np.ndarray):
     data = m.eq_data[idx]
     scale = data[:, 10:11]
     p1, p2 = _anchors(m, d, idx, weld=True)
-    jp1, jr1 = _point_jac(m, d, b1, p1)
-    jp2, jr2 = _point_jac(m, d, b2, p2)
-    vp1, vr1 = _point_jac_dot_v(m, d, b1, p1)
-    vp2, vr2 = _point_jac_dot_v(m, d, b2, p2)
+    jp1, jr1 = jacobian.point_and_rotation(m, d, b1, p1)
+    jp2, jr2 = jacobian.point_and_rotation(m, d, b2, p2)
+    vp1, vr1 = jacobian.point_jac_dot_v(m, d, b1, p1)
+    vp2, vr2 = jacobian.point_jac_dot_v(m, d, b2, p2)
     is_site = _is_site(m, idx)
     s1 = _sites(m.site_quat, m.eq_obj1id[idx], is_site)
     s2 = _sites(m.site_quat, m.eq_obj2id[idx], is_site)
