@@ -84,12 +84,14 @@ QUICK_SCENES = (
 _PREFIX = "fastrl cannot simulate this model yet: "
 CONVERGED_ITERATIONS = 30
 VARIANTS = {  # the tracking comparisons: what each runs
-    "default": "fastrl as `load_mjcf` builds it (its default Newton iteration count) beside MuJoCo C "
-    "stepping the scene as written",
-    "scene": "fastrl at the scene's own `<option iterations>` beside MuJoCo C as written (a truncated "
-    "solve also depends on where each line search stops, so these can part)",
+    "default": "fastrl as `load_mjcf` builds it (MuJoCo's Newton algorithm, the scene's `iterations` "
+    "capped at fastrl's default count) beside MuJoCo C stepping the scene as written",
+    "scene": "the same at the scene's own `<option iterations>`, uncapped",
+    "exact": "fastrl's fixed-budget solver (`linesearch='exact'`: exact line searches, no early exit) "
+    "at the default count beside MuJoCo C as written (a truncated solve depends on where each line "
+    "search stops, so these can part)",
     "converged": "both solvers converged: MuJoCo at iterations=100, ls_iterations=50, tolerance=1e-12; "
-    f"fastrl at {CONVERGED_ITERATIONS} Newton iterations",
+    f"fastrl's exact line searches at {CONVERGED_ITERATIONS} Newton iterations",
 }
 
 
@@ -295,12 +297,17 @@ def _track(row: SceneResult, mj: mujoco.MjModel, model: physics.Model, args) -> 
     row.solver_iterations = {
         "default": model.solver_iterations,
         "scene": int(mj.opt.iterations),
+        "exact": model.solver_iterations,
         "converged": CONVERGED_ITERATIONS,
     }
     cases = {
         "default": (mj, model),
         "scene": (mj, physics.model_from_mujoco(mj, solver_iterations=row.solver_iterations["scene"])),
-        "converged": (_converged(mj), physics.model_from_mujoco(mj, solver_iterations=CONVERGED_ITERATIONS)),
+        "exact": (mj, physics.model_from_mujoco(mj, linesearch="exact")),
+        "converged": (
+            _converged(mj),
+            physics.model_from_mujoco(mj, solver_iterations=CONVERGED_ITERATIONS, linesearch="exact"),
+        ),
     }
     run = _chunk_fn(model)  # one compile for the default comparison and the random controls
     for key in args.variants:

@@ -175,7 +175,9 @@ class Env:
         if not path.exists():
             raise FileNotFoundError(f"{self.name}: asset {path} does not exist")
         kw = {} if solver_iterations is None else {"solver_iterations": int(solver_iterations)}
-        model = physics.load_mjcf(path, integrator=integrator, **kw)
+        # fastrl's environments step a fixed budget of Newton iterations with exact line searches
+        # (the budgets in fastrl/assets/README.md were measured for that solver)
+        model = physics.load_mjcf(path, integrator=integrator, linesearch="exact", **kw)
         if timestep is not None:
             model = model.replace(timestep=jnp.asarray(timestep, model.timestep.dtype))
         self.model: Model = model

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import constraint, derivative, math, smooth, solver, tendon
+from fastrl.physics import constraint, derivative, math, newton, smooth, solver, tendon
 from fastrl.physics.actuation import actuation
 from fastrl.physics.collision_driver import collision
 from fastrl.physics.passive import passive
@@ -57,7 +57,7 @@ def forward(m: Model, d: Data) -> Data:
         return d
     d = collision(m, d)
     d = constraint.make_constraint(m, d)
-    return solver.solve(m, d)
+    return (newton.solve if m.linesearch == "mujoco" else solver.solve)(m, d)
 
 
 def _implicit_damping(m: Model) -> bool:
@@ -101,9 +101,10 @@ def _check(d: Data) -> jax.Array:
 def euler(m: Model, d: Data) -> Data:
     """Semi-implicit Euler: velocity first, then position with the new velocity.
 
-    Expects ``forward_forces`` (and, without implicit damping, ``forward``) to have run. Joint
-    damping is integrated implicitly, ``qacc = (M + h B)^-1 qfrc_smooth``, as MuJoCo does unless
-    ``eulerdamp`` is disabled: it keeps stiffly damped joints stable at large timesteps. That
+    Expects ``forward`` to have run. Joint damping is integrated implicitly,
+    ``qacc = (M + h B)^-1 (qfrc_smooth + qfrc_constraint)``, as MuJoCo does for a model with
+    damping unless ``eulerdamp`` is disabled: it keeps stiffly damped joints stable at large
+    timesteps. That
     acceleration is the one left in ``qacc`` (MuJoCo keeps the undamped one there; solving once
     instead of twice saves a factorisation per step).
     """
@@ -111,7 +112,14 @@ def euler(m: Model, d: Data) -> Data:
     qacc = d.qacc
     if _implicit_damping(m):
         damped = d.qM + jnp.diag(h * m.dof_damping)
-        qacc = smooth.solve(m, damped, d.qfrc_smooth + d.qfrc_constraint)
+        implicit = smooth.solve(m, damped, d.qfrc_smooth + d.qfrc_constraint)
+        # As MuJoCo: only a model with damping; without, the solver's qacc (which, after a
+        # truncated solve, differs from M^-1 (qfrc_smooth + qfrc_constraint)). Without
+        # constraints the two agree bit for bit, and ``step`` skips the solve (qacc is unset).
+        if has_constraints(m):
+            qacc = jnp.where(jnp.any(m.dof_damping > 0), implicit, qacc)
+        else:
+            qacc = implicit
     qvel = d.qvel + h * qacc
     qpos = integrate_pos(m, d.qpos, qvel, h)
     return d.replace(qpos=qpos, qvel=qvel, qacc=qacc, time=d.time + h)

@@ -361,6 +361,17 @@ def asset_solver_iterations(m: mujoco.MjModel) -> int:
     return int(value)
 
 
+LINESEARCHES = ("exact", "mujoco")
+
+
+def asset_linesearch(m: mujoco.MjModel) -> str:
+    """``"exact"`` for a model that names its own ``fastrl_solver_iterations`` (fastrl's tuned
+    assets: a fixed budget of Newton steps with exact line searches), else ``"mujoco"`` (MuJoCo's
+    algorithm with the scene's own tolerances, so a truncated solve stops where MuJoCo's does)."""
+    named = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, SOLVER_ITERATIONS_NUMERIC) >= 0
+    return "exact" if named else "mujoco"
+
+
 def _checked(m: mujoco.MjModel, integrator, solver_iterations, nconmax) -> tuple[Integrator, int]:
     """Checks the arguments and the model (``_check_supported``); returns the integrator and the
     solver's iteration count to use."""
@@ -416,9 +427,14 @@ def model_from_mujoco(
     integrator: str | None = None,
     solver_iterations: int | None = None,
     nconmax: int | None = None,
+    linesearch: str | None = None,
 ) -> Model:
     """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
     integ, solver_iterations = _checked(m, integrator, solver_iterations, nconmax)
+    if linesearch is None:
+        linesearch = asset_linesearch(m)
+    if linesearch not in LINESEARCHES:
+        raise ValueError(f"linesearch={linesearch!r}; choose one of {LINESEARCHES}")
     obj = mujoco.mjtObj
     pairs = candidate_geom_pairs(m) if contacts_enabled(m) else []
     mixed = _mix_pair_params(m, pairs)
@@ -455,7 +471,10 @@ def model_from_mujoco(
         pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
-        solver_iterations=int(solver_iterations), nconmax=int(nconmax),
+        solver_iterations=int(solver_iterations), nconmax=int(nconmax), linesearch=linesearch,
+        ls_iterations=int(m.opt.ls_iterations), solver_tolerance=float(m.opt.tolerance),
+        ls_tolerance=float(m.opt.ls_tolerance), meaninertia=float(m.stat.meaninertia),
+        ntree=max(1, int(m.ntree)), dof_treeid=i32(np.maximum(m.dof_treeid, 0)),
         integrator=int(integ), disableflags=int(m.opt.disableflags),
         body_names=_names(m, obj.mjOBJ_BODY, m.nbody), jnt_names=_names(m, obj.mjOBJ_JOINT, m.njnt),
         geom_names=_names(m, obj.mjOBJ_GEOM, m.ngeom), site_names=_names(m, obj.mjOBJ_SITE, m.nsite),
@@ -490,6 +509,7 @@ def load_mjcf(
     integrator: str | None = None,
     solver_iterations: int | None = None,
     nconmax: int | None = None,
+    linesearch: str | None = None,
 ) -> Model:
     """Compiles an MJCF file (or XML string) with MuJoCo's compiler into a fastrl ``Model``.
 
@@ -506,10 +526,16 @@ def load_mjcf(
       nconmax: contact slots, the most contacts that get constraint rows at once (the deepest
         candidates); default ``<size nconmax>`` if the MJCF sets it, else
         ``constraint.default_nconmax``.
+      linesearch: the constraint solver's algorithm. ``"mujoco"`` (the default unless the MJCF
+        names ``fastrl_solver_iterations``): MuJoCo's Newton solver as written, with its
+        islands, ``tolerance``, ``ls_iterations`` and ``ls_tolerance``, so that a truncated solve
+        (a scene with few ``iterations``) stops where MuJoCo's does. ``"exact"``: each Newton step
+        takes an exact line search, the faster choice for a fixed budget of iterations that
+        converges (fastrl's own environments).
     Returns:
       The ``Model``; float parameters are float32 unless ``jax_enable_x64`` is on.
     """
-    return model_from_mujoco(_compile(path_or_xml), integrator, solver_iterations, nconmax)
+    return model_from_mujoco(_compile(path_or_xml), integrator, solver_iterations, nconmax, linesearch)
 
 
 def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:

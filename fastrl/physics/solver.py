@@ -144,7 +144,7 @@ class _Cones(typing.NamedTuple):
         return jnp.sum(slope), jnp.sum(curve)
 
 
-class _Rows(typing.NamedTuple):
+class Rows(typing.NamedTuple):
     """The constraint rows split the way the solver uses them (one environment).
 
     Friction-loss rows are unit vectors ``e_dof`` and limit rows signed unit vectors
@@ -216,7 +216,7 @@ class _Rows(typing.NamedTuple):
         return bool(self.fr_aref.size or self.cones)
 
 
-def _rows(m: Model, d: Data) -> _Rows:
+def make_rows(m: Model, d: Data) -> Rows:
     fr = constraint.friction_dofs(m)
     dofs = constraint.limit_dofs(m)
     ne = equality.nrows(m)
@@ -234,13 +234,13 @@ def _rows(m: Model, d: Data) -> _Rows:
                             d.efc_D[rows].reshape(nslot, dim), mu, fric))  # fmt: skip
     ft = constraint.friction_tendons(m)
     loss = jnp.concatenate([m.dof_frictionloss[fr], m.tendon_frictionloss[ft]])
-    return _Rows(d.efc_J[:ne], d.efc_aref[:ne], d.efc_D[:ne],
+    return Rows(d.efc_J[:ne], d.efc_aref[:ne], d.efc_D[:ne],
                  fr, d.efc_J[ne + fr.size : nf], d.efc_aref[ne:nf], d.efc_D[ne:nf], loss,
                  dofs, d.efc_J[np.arange(nf, n), dofs], d.efc_aref[nf:n], d.efc_D[nf:n],
                  d.efc_J[n:end], d.efc_aref[n:end], d.efc_D[n:end], tuple(cones))  # fmt: skip
 
 
-def _cost(rows: _Rows, d: Data, a: jax.Array) -> jax.Array:
+def primal_cost(rows: Rows, d: Data, a: jax.Array) -> jax.Array:
     jf, jl, jc, jq, *je = rows.jar(a)
     da = a - d.qacc_smooth
     f, dd = rows.fr_loss, rows.fr_D
@@ -270,7 +270,7 @@ def _add_outer(hess: jax.Array, left: jax.Array, right: jax.Array) -> jax.Array:
     return hess + left.T @ right
 
 
-def _quadratic(rows: _Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ...]):
+def gradient_hessian(rows: Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ...]):
     """Gradient and Hessian of the cost at ``a``, given its row residuals ``res = J a - aref``.
 
     ``H = M + J^T diag(D * quadratic) J`` plus each cone block's ``J^T H_cone J``; friction-loss
@@ -335,7 +335,7 @@ def _bracketed_newton(slope_curve, dtype) -> jax.Array:
     return alpha
 
 
-def _newton_step(structure, rows: _Rows, d: Data, carry):
+def _newton_step(structure, rows: Rows, d: Data, carry):
     a, res, grad, hess = carry
     step = -smooth.solve_structured(structure, hess, grad)
     # Exact line search on phi(alpha) = cost(a + alpha step), piecewise quadratic and convex.
@@ -372,7 +372,7 @@ def _newton_step(structure, rows: _Rows, d: Data, carry):
     alpha = jax.lax.stop_gradient(alpha)
     a = a + alpha * step
     res = tuple(r + alpha * s for r, s in zip(res, js, strict=True))  # residuals are linear in a
-    return (a, res, *_quadratic(rows, d, a, res))
+    return (a, res, *gradient_hessian(rows, d, a, res))
 
 
 def solve(m: Model, d: Data) -> Data:
@@ -381,16 +381,20 @@ def solve(m: Model, d: Data) -> Data:
     Starts from the cheaper of ``qacc_warmstart`` (the last step's acceleration) and
     ``qacc_smooth``, as MuJoCo does, then takes ``m.solver_iterations`` Newton steps.
     """
-    rows = _rows(m, d)
+    rows = make_rows(m, d)
     warm = d.qacc_warmstart
-    a = jnp.where(_cost(rows, d, warm) < _cost(rows, d, d.qacc_smooth), warm, d.qacc_smooth)
+    a = jnp.where(primal_cost(rows, d, warm) < primal_cost(rows, d, d.qacc_smooth), warm, d.qacc_smooth)
     structure = hessian_structure(m)
     # The loop carries the next step's gradient and Hessian: a loop boundary is the one place
     # where XLA is sure to materialise H rather than fuse it into its readers.
     res = rows.jar(a)
-    carry = (a, res, *_quadratic(rows, d, a, res))
+    carry = (a, res, *gradient_hessian(rows, d, a, res))
     carry = jax.lax.fori_loop(0, m.solver_iterations, lambda _, c: _newton_step(structure, rows, d, c), carry)
-    a = carry[0]
+    return finish(rows, d, carry[0])
+
+
+def finish(rows: Rows, d: Data, a: jax.Array) -> Data:
+    """``d`` with the solver's result ``qacc = a`` and the constraint forces it implies."""
     jf, jl, jc, jq, *je = rows.jar(a)
     ff = -rows.friction_force(jf)[0]
     fq = -rows.eq_D * jq

@@ -95,6 +95,13 @@ class Model:
       eq_active0                               (neq,)   1: active at reset (Data.eq_active)
       cone                                     0 pyramidal, 1 elliptic friction cone
       solver_iterations                        static iteration count of the constraint solver
+      linesearch                               'exact': fixed Newton steps with exact line
+                                               searches (solver.py); 'mujoco': MuJoCo's islands,
+                                               tolerances and line search (newton.py)
+      ls_iterations, solver_tolerance, ls_tolerance   MuJoCo's options, for 'mujoco'
+      meaninertia                              MuJoCo's stat.meaninertia (solver scale when
+                                               islands are disabled)
+      ntree, dof_treeid                        kinematic trees and each dof's (islands)
       nconmax                                  contact slots: rows exist for the nconmax deepest
                                                candidate contacts (per condim group)
       integrator                               Integrator
@@ -188,6 +195,13 @@ class Model:
     eq_active0: np.ndarray
     cone: int
     solver_iterations: int
+    linesearch: str
+    ls_iterations: int
+    solver_tolerance: float
+    ls_tolerance: float
+    meaninertia: float
+    ntree: int
+    dof_treeid: np.ndarray
     nconmax: int
     integrator: int
     disableflags: int

@@ -1,0 +1,406 @@
+"""MuJoCo's Newton solver as written: islands, tolerances and its inexact line search.
+
+``solver.solve`` takes a fixed number of Newton steps, each with an exact line search; once the
+iterate has converged the two agree with MuJoCo to rounding. A scene tuned for a truncated solve
+(MuJoCo Playground's scenes take 1 to 5 iterations with 5 to 10 line-search evaluations) does not
+converge in one step, and where MuJoCo stops then depends on the details of its algorithm. This
+module follows them (``mj_solNewton`` in MuJoCo's ``engine_solver.c``):
+
+- **Islands.** Trees (a world child with its descendants) that share a constraint row form an
+  island; each island is solved on its own, with its own scale ``1 / sum(diag M)``, line search
+  and termination. Dofs in no island take ``qacc_smooth``. Islands are found in the traced
+  program from which trees each existing row's Jacobian touches (a transitive closure over the
+  static trees), so every per-island quantity here is a vector over ``ntree`` possible islands.
+- **Start and early exit.** The better of the warm start and ``qacc_smooth`` (ties keep the warm
+  start); an island whose duality gap ``grad' M^-1 grad / 2`` and gradient are already below
+  ``tolerance`` (scaled) takes no step, nor one whose Newton decrement is. After each step an
+  island stops when its improvement, gradient or Newton decrement falls below ``tolerance``, or
+  when its line search finds no improvement.
+- **Line search** (``PrimalSearch``): a Newton step on the line cost from 0, then one-sided
+  Newton steps until the slope changes sign, then a bracketed search over the two Newton
+  points and the midpoint, stopping at a slope below ``tolerance * ls_tolerance`` (scaled by
+  the search direction's norm) or after ``ls_iterations`` evaluations. It runs as a
+  ``while_loop`` with one evaluation of every island's line cost per pass, so a batch pays for
+  its slowest environment's evaluations only.
+
+The iteration count is still static (``Model.solver_iterations``, MuJoCo's ``iterations``
+capped as ``io.asset_solver_iterations`` says); an island that has stopped stays put. The step
+lengths carry no gradient (as in ``solver``), so the solve stays differentiable.
+"""
+
+from __future__ import annotations
+
+import typing
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from fastrl.physics import smooth
+from fastrl.physics.math import matvec
+from fastrl.physics.solver import Rows, finish, gradient_hessian, hessian_structure, make_rows, primal_cost
+from fastrl.physics.types import Data, Model
+
+MINVAL = 1e-15  # mjMINVAL
+
+
+class _Islands(typing.NamedTuple):
+    dof: jax.Array  # (nv, k) one-hot: each constrained dof's island
+    rows: tuple[jax.Array, ...]  # per row group of Rows.j (cones: per block), (r, k) one-hot
+    scale: jax.Array  # (k,) 1 / island inertia; 0 where no island
+
+    def per(self, x: jax.Array) -> jax.Array:
+        """Sum of a per-dof quantity over each island."""
+        return x @ self.dof
+
+    def norm(self, x: jax.Array) -> jax.Array:
+        return jnp.sqrt(self.per(x * x))
+
+
+def _row_jacobians(rows: Rows, nv: int):
+    """Each row group's |J| != 0 (r, nv) and whether each row exists (efc_D > 0)."""
+    eye = np.eye(nv, dtype=bool)
+    fr = jnp.concatenate([jnp.asarray(eye[rows.fr_dofs]), rows.tf_jac != 0])
+    touch = [fr, jnp.asarray(eye[rows.lim_dofs]), rows.jac != 0, rows.eq_jac != 0]
+    touch += [jnp.any(c.jac != 0, axis=1) for c in rows.cones]
+    exist = [jnp.ones(fr.shape[0], bool), rows.lim_D > 0, rows.dd > 0, rows.eq_D > 0]
+    exist += [c.dd[:, 0] > 0 for c in rows.cones]
+    return touch, exist
+
+
+def islands(m: Model, rows: Rows, qm: jax.Array) -> _Islands:
+    """The constraint islands of this step (mj_island), as one-hot maps over ``m.ntree`` slots."""
+    nv, k = qm.shape[-1], m.ntree
+    tree = np.eye(k)[m.dof_treeid]  # (nv, ntree)
+    dtype = qm.dtype
+    touch, exist = _row_jacobians(rows, nv)
+    incid = [(t.astype(dtype) @ tree > 0) & e[:, None] for t, e in zip(touch, exist, strict=True)]
+    if m.disableflags & mujoco.mjtDisableBit.mjDSBL_ISLAND:  # one island of every dof, MuJoCo's global scale
+        dof = jnp.ones((nv, 1), dtype)
+        row_isl = tuple(jnp.any(b, axis=1, keepdims=True).astype(dtype) for b in incid)
+        return _Islands(dof, row_isl, jnp.full((1,), 1.0 / (m.meaninertia * max(1, nv)), dtype))
+    b = jnp.concatenate(incid).astype(dtype)
+    adj = (b.T @ b) > 0  # trees sharing a row
+    constrained = jnp.diagonal(adj)
+    reach = adj | jnp.eye(k, dtype=bool)
+    for _ in range(int(np.ceil(np.log2(max(k, 2))))):
+        reach = (reach.astype(dtype) @ reach.astype(dtype)) > 0
+    label = jnp.argmax(reach, axis=1)  # an island's id: its lowest tree
+    tree_isl = jax.nn.one_hot(label, k, dtype=dtype) * constrained[:, None]
+    dof = jnp.asarray(tree, dtype) @ tree_isl
+    row_isl = tuple(((x.astype(dtype) @ tree_isl) > 0).astype(dtype) for x in incid)
+    inertia = jnp.diagonal(qm) @ dof
+    scale = jnp.where(inertia > 0, 1.0 / jnp.where(inertia > 0, inertia, 1.0), 0.0)
+    return _Islands(dof, row_isl, scale)
+
+
+class _Point(typing.NamedTuple):
+    alpha: jax.Array
+    cost: jax.Array
+    d0: jax.Array
+    d1: jax.Array
+
+
+def _pick(mask, p: _Point, q: _Point) -> _Point:
+    return _Point(*(jnp.where(mask, b, a) for a, b in zip(p, q, strict=True)))
+
+
+def _newton_from(p: _Point) -> jax.Array:
+    return p.alpha - p.d0 / p.d1
+
+
+class _Line(typing.NamedTuple):
+    """The line cost ``cost(a + alpha v) - cost(a)`` of every island, ready to evaluate."""
+
+    isl: _Islands
+    gauss: tuple[jax.Array, jax.Array]  # (k,) linear and quadratic coefficients
+    rows: Rows
+    res: tuple[jax.Array, ...]  # J a - aref, per group
+    js: tuple[jax.Array, ...]  # J v, per group
+
+    def eval(self, alpha: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """Each island's cost change, slope and curvature at its own ``alpha`` (PrimalEval)."""
+        isl, rows = self.isl, self.rows
+        g1, g2 = self.gauss
+        cost, d0, d1 = alpha * alpha * g2 + alpha * g1, 2 * alpha * g2 + g1, 2 * g2
+        fr, lim, con, eq, *cones = zip(self.res, self.js, isl.rows, strict=True)
+        parts = [_friction(rows, *fr, alpha), _inequality(*lim, rows.lim_D, alpha),
+                 _inequality(*con, rows.dd, alpha), _equality(*eq, rows.eq_D, alpha)]  # fmt: skip
+        parts += [_cone(c, *x, alpha) for c, x in zip(rows.cones, cones, strict=True)]
+        for (c, s, u), (_, _, onehot) in zip(parts, (fr, lim, con, eq, *cones), strict=True):
+            cost, d0, d1 = cost + c @ onehot, d0 + s @ onehot, d1 + u @ onehot
+        return cost, d0, jnp.where(d1 <= 0, MINVAL, d1)
+
+
+def _friction(rows: Rows, start, v, onehot, alpha):
+    """Friction-loss rows: Huber cost (quadratic within ``|x| < R f``, linear beyond)."""
+    x = start + (onehot @ alpha) * v
+    f, dd = rows.fr_loss, rows.fr_D
+    rf = f / jnp.where(dd > 0, dd, 1.0)
+
+    def zone(y):
+        return jnp.where((-rf < y) & (y < rf), 0, jnp.where(y <= -rf, -1, 1))
+
+    def absolute(y):
+        return jnp.where(zone(y) == 0, 0.5 * dd * y * y, f * (-0.5 * rf + jnp.abs(y)))
+
+    z0, z = zone(start), zone(x)
+    dif = jnp.where(
+        (z0 == 0) & (z == 0),
+        0.5 * dd * (x - start) * (x + start),
+        jnp.where((z0 == z) & (z != 0), f * jnp.abs(x) - f * jnp.abs(start), absolute(x) - absolute(start)),
+    )
+    slope = jnp.where(z == 0, dd * x * v, f * z * v)
+    curve = jnp.where(z == 0, dd * v * v, 0.0)
+    return dif, slope, curve
+
+
+def _inequality(start, v, onehot, dd, alpha):
+    """Limit and pyramidal contact rows: ``D x^2 / 2`` while ``x < 0``."""
+    a = onehot @ alpha
+    x = start + a * v
+    q0, q1, q2 = 0.5 * dd * start * start, v * dd * start, 0.5 * v * dd * v
+    cost0 = jnp.where(start < 0, q0, 0.0)
+    on = x < 0
+    return (jnp.where(on, q0 - cost0 + a * q1 + a * a * q2, -cost0),
+            jnp.where(on, 2 * a * q2 + q1, 0.0), jnp.where(on, 2 * q2, 0.0))  # fmt: skip
+
+
+def _equality(start, v, onehot, dd, alpha):
+    a = onehot @ alpha
+    q1, q2 = v * dd * start, 0.5 * v * dd * v
+    return a * q1 + a * a * q2, 2 * a * q2 + q1, 2 * q2
+
+
+def _cone_zone(n, tsqr, mu):
+    """1 top, 2 bottom, 3 middle; and T."""
+    t = jnp.sqrt(jnp.maximum(tsqr, 0.0))
+    zone = jnp.where(n >= mu * t, 1, jnp.where(mu * n + t <= 0, 2, 3))
+    return jnp.where(tsqr <= 0, jnp.where(n < 0, 2, 1), zone), t
+
+
+def _cone(c, start, v, onehot, alpha):
+    """Elliptic-cone blocks (ellipticCostDif and PrimalEval's cone branch)."""
+    a = onehot @ alpha
+    mu, dd = c.mu, c.dd
+    q0 = 0.5 * jnp.sum(dd * start * start, -1)
+    q1 = jnp.sum(v * dd * start, -1)
+    q2 = 0.5 * jnp.sum(v * dd * v, -1)
+    u0, v0 = start[:, 0] * mu, v[:, 0] * mu
+    u, w = start[:, 1:] * c.fric, v[:, 1:] * c.fric
+    uu, uv, vv = jnp.sum(u * u, -1), jnp.sum(u * w, -1), jnp.sum(w * w, -1)
+    dm = dd[:, 0] / (mu * mu * (1 + mu * mu))
+    zone0, t0 = _cone_zone(u0, uu, mu)
+    n = u0 + a * v0
+    tsqr = uu + a * (2 * uv + a * vv)
+    zone, t = _cone_zone(n, tsqr, mu)
+    quad = a * a * q2 + a * q1
+    tsafe = jnp.where(t > 0, t, 1.0)
+    t_delta = a * (2 * uv + a * vv) / jnp.where(t + t0 > 0, t + t0, 1.0)
+    r_delta, r0, r = a * v0 - mu * t_delta, u0 - mu * t0, n - mu * t
+    cases = [
+        ((zone0 == 2) & (zone == 2), quad),
+        ((zone0 == 3) & (zone == 3), 0.5 * dm * r_delta * (2 * r0 + r_delta)),
+        ((zone0 == 3) & (zone == 2), quad + 0.5 * dm * (mu * u0 + t0) ** 2),
+        ((zone0 == 2) & (zone == 3), quad - 0.5 * dm * (mu * n + t) ** 2),
+        ((zone0 == 1) & (zone == 2), quad + q0),
+        ((zone0 == 1) & (zone == 3), 0.5 * dm * r * r),
+        ((zone0 == 3) & (zone == 1), -0.5 * dm * r0 * r0),
+        ((zone0 == 2) & (zone == 1), -q0),
+    ]
+    dif = jnp.zeros_like(q0)
+    for mask, value in cases:
+        dif = jnp.where(mask, value, dif)
+    t1 = (uv + a * vv) / tsafe
+    t2 = vv / tsafe - (uv + a * vv) * t1 / (tsafe * tsafe)
+    g, g1 = r, v0 - mu * t1
+    slope = jnp.where(zone == 2, 2 * a * q2 + q1, jnp.where(zone == 3, dm * g * g1, 0.0))
+    curve = jnp.where(zone == 2, 2 * q2, jnp.where(zone == 3, dm * (g1 * g1 - g * mu * t2), 0.0))
+    return dif, slope, curve
+
+
+# line-search phases: which point the pending evaluation is for
+_P0, _P1, _ONESIDED, _P1NEXT, _MID, _UPD1, _UPD2, _DONE = range(8)
+
+
+class _Search(typing.NamedTuple):
+    phase: jax.Array
+    evals: jax.Array
+    req: jax.Array  # the alpha to evaluate next
+    p0: _Point
+    p1: _Point
+    p2: _Point
+    p1next: _Point
+    p2next: _Point
+    pmid: _Point
+    direction: jax.Array
+    pending2: jax.Array  # the p2 bracket moved too: evaluate its Newton point after p1's
+    alpha: jax.Array  # result
+    improvement: jax.Array
+
+
+def _update_bracket(p: _Point, candidates) -> tuple[_Point, jax.Array]:
+    moved = jnp.zeros(p.alpha.shape, bool)
+    for c in candidates:
+        neg = (p.d0 < 0) & (c.d0 < 0) & (p.d0 < c.d0)
+        pos = ~neg & (p.d0 > 0) & (c.d0 > 0) & (p.d0 > c.d0)
+        p, moved = _pick(neg | pos, p, c), moved | neg | pos
+    return p, moved
+
+
+def _transition(s: _Search, q: _Point, gtol, ls_iterations: int) -> _Search:
+    """Advances every island's line search past the evaluation ``q`` (PrimalSearch's steps)."""
+    ph = s.phase
+    evals = s.evals + (ph != _DONE)
+    st = dict(s._asdict(), evals=evals)
+
+    def set_(mask, **kw):
+        for name, value in kw.items():
+            old = st[name]
+            st[name] = _pick(mask, old, value) if isinstance(old, _Point) else jnp.where(mask, value, old)
+
+    def done(mask, p: _Point):
+        set_(mask, phase=_DONE, alpha=p.alpha, improvement=-p.cost)
+
+    def bracket_check(mask):
+        go = mask & (evals < ls_iterations)
+        set_(go, phase=_MID, req=0.5 * (st["p1"].alpha + st["p2"].alpha))
+        final = mask & ~go
+        p1, p2 = st["p1"], st["p2"]
+        use1 = final & (p1.cost <= p2.cost) & (p1.cost < 0)
+        use2 = final & ~use1 & (p2.cost <= p1.cost) & (p2.cost < 0)
+        done(use1, p1)
+        done(use2, p2)
+        set_(final & ~use1 & ~use2, phase=_DONE, alpha=0.0, improvement=0.0)
+
+    # the first two evaluations: alpha = 0, then one Newton step from it
+    m = ph == _P0
+    set_(m, p0=q, phase=_P1, req=_newton_from(q))
+    m = ph == _P1
+    set_(m, p1=q)
+    conv = m & (jnp.abs(q.d0) < gtol) & ((q.alpha == 0) | (q.cost < 0))
+    done(conv, q)
+    first = m & ~conv
+    set_(first, direction=jnp.where(q.d0 < 0, 1.0, -1.0), p2=st["p0"])
+    # one-sided Newton steps until the slope changes sign
+    m = ph == _ONESIDED
+    set_(m, p1=q)
+    conv = m & (jnp.abs(q.d0) < gtol) & (q.cost < 0)
+    done(conv, q)
+    onesided = first | (m & ~conv)
+    p1 = st["p1"]
+    go = onesided & (p1.d0 * st["direction"] <= -gtol) & (evals < ls_iterations)
+    set_(go, p2=p1, phase=_ONESIDED, req=_newton_from(p1))
+    after = onesided & ~go
+    done(after & (evals >= ls_iterations), p1)  # could not bracket
+    set_(after & (evals < ls_iterations), p2next=p1, phase=_P1NEXT, req=_newton_from(p1))
+    # bracketed search
+    m = ph == _P1NEXT
+    set_(m, p1next=q)
+    bracket_check(m)
+    m = ph == _MID
+    set_(m, pmid=q)
+    candidates = (st["p1next"], st["p2next"], q)
+    best, found = candidates[0], jnp.zeros(ph.shape, bool)
+    for c in candidates:
+        better = (jnp.abs(c.d0) < gtol) & (~found | (c.cost < best.cost))
+        best, found = _pick(better, best, c), found | better
+    done(m & found, best)
+    m = m & ~found
+    p1, moved1 = _update_bracket(st["p1"], candidates)
+    p2, moved2 = _update_bracket(st["p2"], candidates)
+    done(m & ~moved1 & ~moved2, q)  # no bracket update possible: the midpoint
+    m = m & (moved1 | moved2)
+    set_(m, p1=p1, p2=p2, pending2=moved2)
+    set_(m & moved1, phase=_UPD1, req=_newton_from(p1))
+    set_(m & ~moved1, phase=_UPD2, req=_newton_from(p2))
+    m = ph == _UPD1
+    set_(m, p1next=q)
+    set_(m & st["pending2"], phase=_UPD2, req=_newton_from(st["p2"]))
+    check = m & ~s.pending2
+    m = ph == _UPD2
+    set_(m, p2next=q)
+    bracket_check(check | m)
+    return _Search(**st)
+
+
+def line_search(line: _Line, search: jax.Array, active: jax.Array, tolerance, ls_iterations: int):
+    """Every island's step length and cost improvement along ``search`` (PrimalSearch)."""
+    isl = line.isl
+    snorm = isl.norm(search)
+    scale = jnp.where(isl.scale > 0, isl.scale, 1.0)
+    gtol = tolerance * snorm / scale
+    start = active & (snorm >= MINVAL)
+    z = jnp.zeros_like(snorm)
+    pt = _Point(z, z, z, z)
+    s = _Search(jnp.where(start, _P0, _DONE), jnp.zeros(z.shape, jnp.int32), z, pt, pt, pt, pt, pt, pt,
+                z + 1, jnp.zeros(z.shape, bool), z, z)  # fmt: skip
+
+    def body(carry):
+        s, n = carry
+        q = _Point(s.req, *line.eval(s.req))
+        return _transition(s, q, gtol, ls_iterations), n + 1
+
+    def cond(carry):
+        s, n = carry
+        return jnp.any(s.phase != _DONE) & (n < ls_iterations + 4)
+
+    s, _ = jax.lax.while_loop(cond, body, (s, 0))
+    finished = s.phase == _DONE
+    return jnp.where(finished, s.alpha, 0.0), jnp.where(finished, s.improvement, 0.0)
+
+
+def solve(m: Model, d: Data) -> Data:
+    """``qacc``, ``efc_force`` and ``qfrc_constraint`` by MuJoCo's Newton solver (module docstring)."""
+    rows = make_rows(m, d)
+    isl = islands(m, rows, d.qM)
+    tol = m.solver_tolerance
+    constrained = jnp.any(isl.dof > 0, axis=1)
+    warm = d.qacc_warmstart
+    a = jnp.where(primal_cost(rows, d, warm) > primal_cost(rows, d, d.qacc_smooth), d.qacc_smooth, warm)
+    a = jnp.where(constrained, a, d.qacc_smooth)
+    structure = hessian_structure(m)
+    res = rows.jar(a)
+    grad, hess = gradient_hessian(rows, d, a, res)
+    real = isl.scale > 0
+    gradient_ok = isl.scale * isl.norm(grad) < tol
+    gap = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * smooth.solve(m, d.qM, grad))) < tol
+    mgrad = smooth.solve_structured(structure, hess, grad)
+    decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
+    stopped = ~real | (gap & gradient_ok) | (gradient_ok & (decrement < tol))
+
+    def step(_, carry):
+        a, res, grad, hess, mgrad, stopped = carry
+        search = -mgrad * (isl.dof @ (~stopped).astype(a.dtype))
+        line = jax.lax.stop_gradient(_line(rows, isl, d, a, res, search))
+        alpha, improvement = line_search(line, jax.lax.stop_gradient(search), ~stopped,
+                                         tol * m.ls_tolerance, m.ls_iterations)  # fmt: skip
+        moved = ~stopped & (alpha != 0)
+        alpha = jnp.where(moved, alpha, 0.0)
+        a = a + (isl.dof @ alpha) * search
+        js = rows.j(search)
+        res = tuple(r + (o @ alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
+        grad, hess = gradient_hessian(rows, d, a, res)
+        mgrad = smooth.solve_structured(structure, hess, grad)
+        improvement = isl.scale * improvement
+        gradient = isl.scale * isl.norm(grad)
+        decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
+        converged = ((improvement > 0) & (improvement < tol)) | (gradient < tol) | (decrement < tol)
+        return a, res, grad, hess, mgrad, stopped | ~moved | converged
+
+    carry = (a, res, grad, hess, mgrad, stopped)
+    carry = jax.lax.fori_loop(0, m.solver_iterations, step, carry)
+    return finish(rows, d, carry[0])
+
+
+def _group_maps(isl: _Islands) -> tuple[jax.Array, ...]:
+    """Per row group of ``Rows.j``, each row's island one-hot (cone blocks: per block row)."""
+    fr, lim, con, eq, *cones = isl.rows
+    return (fr, lim, con, eq, *(c[:, None, :] for c in cones))
+
+
+def _line(rows: Rows, isl: _Islands, d: Data, a, res, search) -> _Line:
+    mv = matvec(d.qM, search)
+    gauss = (isl.per(search * matvec(d.qM, a - d.qacc_smooth)), 0.5 * isl.per(search * mv))
+    return _Line(isl, gauss, rows, res, rows.j(search))
