@@ -65,7 +65,8 @@ def test_scene_loads_or_is_refused_by_name(name):
 
 
 def test_quick_run(tmp_path):
-    """``--quick``: the Go1 feet-only scene tracks MuJoCo C when both solvers converge, stays finite
+    """``--quick``: the Go1 feet-only scene tracks MuJoCo C as written (one Newton iteration, MuJoCo's
+    line search) and when both solvers converge, stays finite
     under random controls, and the refused scenes are listed by feature in the page."""
     cmd = [sys.executable, str(ROOT / "experiments" / "robot_coverage.py"), "--quick", "--out", str(tmp_path)]
     subprocess.run(cmd, check=True, cwd=ROOT, timeout=300)
@@ -82,6 +83,7 @@ def test_quick_run(tmp_path):
             assert set(row["qpos_err"]) == {"default", "converged"}
             assert all(math.isfinite(e) for e in row["qpos_err"].values())
             assert row["qpos_err"]["converged"] <= robot_coverage.TRACK_TOL
+            assert row["qpos_err"]["default"] <= robot_coverage.TRACK_TOL
             assert row["root_err_f32"] <= robot_coverage.ROOT_TOL  # float32, as fastrl trains
         else:
             assert row["status"] == "refused" and row["features"]

@@ -104,25 +104,24 @@ def euler(m: Model, d: Data) -> Data:
     Expects ``forward`` to have run. Joint damping is integrated implicitly,
     ``qacc = (M + h B)^-1 (qfrc_smooth + qfrc_constraint)``, as MuJoCo does for a model with
     damping unless ``eulerdamp`` is disabled: it keeps stiffly damped joints stable at large
-    timesteps. That
-    acceleration is the one left in ``qacc`` (MuJoCo keeps the undamped one there; solving once
-    instead of twice saves a factorisation per step).
+    timesteps. As in MuJoCo, ``qacc`` stays forward's (the solver's, the next step's warm start;
+    after a truncated solve it differs from ``M^-1 (qfrc_smooth + qfrc_constraint)``), except
+    in a model without constraints, where ``step`` skips the smooth solve and ``qacc`` holds the
+    damped acceleration.
     """
     h = m.timestep
     qacc = d.qacc
     if _implicit_damping(m):
         damped = d.qM + jnp.diag(h * m.dof_damping)
         implicit = smooth.solve(m, damped, d.qfrc_smooth + d.qfrc_constraint)
-        # As MuJoCo: only a model with damping; without, the solver's qacc (which, after a
-        # truncated solve, differs from M^-1 (qfrc_smooth + qfrc_constraint)). Without
-        # constraints the two agree bit for bit, and ``step`` skips the solve (qacc is unset).
-        if has_constraints(m):
+        if has_constraints(m):  # as MuJoCo, only a model with damping integrates it implicitly
             qacc = jnp.where(jnp.any(m.dof_damping > 0), implicit, qacc)
-        else:
+        else:  # no solve ran: qacc is unset (and the damped one equals it where there is none)
+            d = d.replace(qacc=implicit)
             qacc = implicit
     qvel = d.qvel + h * qacc
     qpos = integrate_pos(m, d.qpos, qvel, h)
-    return d.replace(qpos=qpos, qvel=qvel, qacc=qacc, time=d.time + h)
+    return d.replace(qpos=qpos, qvel=qvel, time=d.time + h)
 
 
 def implicitfast(m: Model, d: Data) -> Data:
