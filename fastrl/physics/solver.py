@@ -22,6 +22,10 @@ Each step solves with ``H = M + J^T diag(D * active) J`` (see
 ``hessian_structure``) and then runs a few 1-D Newton steps on the exact piecewise-quadratic line
 cost. The iteration counts are static (``Model.solver_iterations``, ``LINESEARCH_ITERATIONS``), so
 the program has no data-dependent loop; a converged iterate stays put (zero step).
+
+This is ``Model.linesearch == "exact"``, how fastrl's environments step. ``newton.py`` follows
+MuJoCo's own algorithm instead (islands, tolerances, its inexact line search): where a scene's
+solve is truncated, only that one stops where MuJoCo does.
 """
 
 from __future__ import annotations
