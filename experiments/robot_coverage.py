@@ -317,13 +317,14 @@ def _track(row: SceneResult, mj: mujoco.MjModel, model: physics.Model, args) -> 
     _float32(row, mj, args)
 
 
-def _throughput(row: SceneResult, path: pathlib.Path, mj: mujoco.MjModel, batch: int, steps: int) -> None:
-    """Control steps/s at ``batch``: fastrl float32 (vmapped scan) and mujoco.rollout, 2 threads."""
+def _throughput(row: SceneResult, path: pathlib.Path, mj: mujoco.MjModel, args) -> None:
+    """Control steps/s at ``args.batch``: fastrl float32 (vmapped scan) and mujoco.rollout, 2 threads."""
+    batch, steps = args.batch, args.throughput_steps
     from mujoco import rollout
 
     d_mj, _ = _initial(mj)
     with jax.enable_x64(False):
-        model = physics.load_mjcf(str(path))
+        model = physics.load_mjcf(str(path), linesearch=args.linesearch)
         d0 = physics.make_data(model, qpos=d_mj.qpos.copy(), qvel=d_mj.qvel.copy(), ctrl=d_mj.ctrl.copy())
         batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), d0)
 
@@ -359,7 +360,7 @@ def run_scenes(paths: dict[str, pathlib.Path], args) -> list[SceneResult]:
             try:
                 _track(row, mj, model, args)
                 if args.throughput:
-                    _throughput(row, path, mj, args.batch, args.throughput_steps)
+                    _throughput(row, path, mj, args)
             except Exception as err:  # noqa: BLE001  (recorded; the test fails on any)
                 row.error = f"{type(err).__name__}: {err}"
         errs = ", ".join(f"{k} {v:.1e}" for k, v in row.qpos_err.items())
@@ -501,6 +502,9 @@ def main() -> None:
     parser.add_argument("--throughput", action="store_true", help="time batch 1024 (quiet machine only)")
     parser.add_argument("--batch", type=int, default=1024)
     parser.add_argument("--throughput-steps", type=int, default=100)
+    parser.add_argument(
+        "--linesearch", choices=["mujoco", "exact"], help="the solver fastrl's throughput runs (default: load_mjcf's)"
+    )
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     parser.add_argument(
         "--meshes-off",
