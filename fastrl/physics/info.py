@@ -55,9 +55,18 @@ def summary_lines(m: Model) -> list[str]:
         f"constraint rows {nefc} ({f'{ne} equality + ' if ne else ''}{nfric} friction loss + {nlim} limit + "
         f"{nefc - ne - nfric - nlim} contact, "
         f"{'elliptic' if constraint.elliptic(m) else 'pyramidal'} cone; contact slots by condim: {condims})",
-        f"solver          {'none traced' if nefc == 0 else f'Newton, {m.solver_iterations} iterations'}",
+        f"solver          {'none traced' if nefc == 0 else _solver(m)}",
         f"integrator      {m.summary().split('integrator ')[1]}",
     ]
+
+
+def _solver(m: Model) -> str:
+    if m.linesearch == "exact":
+        return f"Newton, {m.solver_iterations} iterations, exact line searches"
+    return (
+        f"Newton as MuJoCo's (islands, tolerance {m.solver_tolerance:g}, up to {m.ls_iterations} "
+        f"line-search evaluations), at most {m.solver_iterations} iterations"
+    )
 
 
 def _tendons(m: Model) -> str:
