@@ -401,7 +401,9 @@ def summarize(rows: list[SceneResult]) -> dict:
         "random_finite": sum(bool(r.random_finite) for r in rows),
         "root_f32_within_1cm": sum(r.root_err_f32 is not None and r.root_err_f32 <= ROOT_TOL for r in rows),
         "with_root": sum(r.root_err_f32 is not None for r in rows),
-        "root_floor_above_1cm": sum(r.root_floor_f32 is not None and r.root_floor_f32 > ROOT_TOL for r in rows),
+        "root_floor_above_1cm": sum(
+            r.root_floor_f32 is not None and r.root_floor_f32 > ROOT_TOL for r in rows
+        ),
         "refused": len(refused),
         "errors": [r.name for r in rows if r.status == "error" or r.error],
         "features_ranked": [{"feature": f, "scenes": n} for f, n in ranked],
@@ -468,12 +470,13 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         f"qpos err: the largest |qpos| difference; in brackets the first step above {TOL} "
         "(`-`: none), then fastrl's Newton iterations. `root f32`: float32 fastrl's root, largest "
         "distance from MuJoCo C's (mm); `f32 state`: MuJoCo C's own root with its state "
-        "rounded to float32 before each step, largest distance from the unrounded run's (mm). `random`: finite after the random-control steps (float32). "
+        "rounded to float32 before each step, largest distance from the unrounded run's (mm). "
+        "`random`: finite after the random-control steps (float32). "
         f"Steps/s (`--throughput` only): control steps per second at batch {meta['batch']}, fastrl "
         "float32 beside `mujoco.rollout` with 2 threads.",
         "",
-        f"| scene | nq | nv | nu | ngeom | integrator | status | start | steps | {head} | root f32 | f32 state | random "
-        "| fastrl steps/s | MuJoCo steps/s | missing features |",
+        f"| scene | nq | nv | nu | ngeom | integrator | status | start | steps | {head} | root f32 "
+        "| f32 state | random | fastrl steps/s | MuJoCo steps/s | missing features |",
         "| --- | ---: | ---: | ---: | ---: | --- | --- | --- | ---: | "
         + "---: | " * len(variants)
         + "---: | ---: | --- | ---: | ---: | --- |",
@@ -527,7 +530,9 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=1024)
     parser.add_argument("--throughput-steps", type=int, default=100)
     parser.add_argument(
-        "--linesearch", choices=["mujoco", "exact"], help="the solver fastrl's throughput runs (default: load_mjcf's)"
+        "--linesearch",
+        choices=["mujoco", "exact"],
+        help="the solver fastrl's throughput runs (default: load_mjcf's)",
     )
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     parser.add_argument(
