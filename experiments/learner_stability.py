@@ -111,6 +111,7 @@ def run_cell(algo: str, batch: int, lrs: list[float], seeds: int, quick: bool) -
             "train.eval_envs=2",
             "env.episode_length=100",
         ]
+        overrides += ["train.eval_every=1"]
         if algo == "sac":
             overrides += ["algo.learning_starts=500", "train.updates_per_chunk=20"]
     else:

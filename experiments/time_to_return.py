@@ -73,12 +73,18 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 PEERS = ROOT / ".venv-peers" / "bin" / "python"
 RESULTS = ROOT / "experiments" / "results"
 
+
+def _every(updates: int) -> list[str]:
+    """fastrl's overrides for an evaluation every ``updates`` learner updates (fixed chunks)."""
+    return [f"train.updates_per_chunk={updates}", "train.eval_every=1"]
+
+
 TASKS = {
     "ant": {
         "label": "the Ant (fastrl: Gymnasium v5's; Brax: its spring Ant)",
         "target": 3000.0,
         # an evaluation every 5 updates (409,600 env steps)
-        "fastrl": ["env=ant", "algo=ppo", "train.updates_per_chunk=5"],
+        "fastrl": ["env=ant", "algo=ppo", *_every(5)],
         "fastrl_steps": 4_096_000,
         "brax": "--env ant --backend spring --num-envs 1024 --batch-size 512 --num-evals 20".split(),
         "brax_steps": 4_000_000,
@@ -86,7 +92,7 @@ TASKS = {
     "inverted_pendulum": {
         "label": "inverted_pendulum (same task and settings)",
         "target": 950.0,
-        "fastrl": ["env=inverted_pendulum", "algo=ppo"],
+        "fastrl": ["env=inverted_pendulum", "algo=ppo", *_every(10)],
         "fastrl_steps": 153_600,
         "brax": (
             "--env inverted_pendulum --backend generalized --num-envs 64 --batch-size 16 --num-minibatches 4"
@@ -108,7 +114,7 @@ TASKS.update(
             "label": f"{env} (Brax: its generalized {env})",
             "algo": "sac",
             "target": target,
-            "fastrl": [f"env={env}", "algo=sac", "train.updates_per_chunk=800"],  # eval every 51,200 steps
+            "fastrl": [f"env={env}", "algo=sac", *_every(800)],  # eval every 51,200 steps
             "fastrl_steps": 1_024_000,
             "brax": f"{_SAC_BRAX} --env {env}".split(),
             "brax_steps": 1_024_000,
@@ -126,7 +132,7 @@ TASKS.update(
             "label": f"{env} (Brax: its generalized {env})",
             "algo": "es",
             "target": target,
-            "fastrl": [f"env={env}", "algo=es"],  # 5 updates (640k env steps) per evaluation
+            "fastrl": [f"env={env}", "algo=es", *_every(5)],  # 5 updates (640k env steps) per evaluation
             "fastrl_steps": 20_480_000,
             "brax": [*f"{_ES_BRAX} --env {env} --hidden".split(), *hidden],  # swimmer: linear
             "brax_steps": 20_480_000,
@@ -138,7 +144,11 @@ TASKS["inverted_pendulum_apg"] = {
     "label": "inverted_pendulum (Brax: its generalized inverted_pendulum, survival reward only)",
     "algo": "apg",
     "target": 950.0,
-    "fastrl": ["env=inverted_pendulum", "algo=apg"],  # 20 updates (40,960 env steps) per evaluation
+    "fastrl": [
+        "env=inverted_pendulum",
+        "algo=apg",
+        *_every(20),
+    ],  # 20 updates (40,960 env steps) per evaluation
     "fastrl_steps": 491_520,
     "brax": (
         "--algo apg --env inverted_pendulum --hidden 32 32 --set num_envs=64 horizon_length=32"
@@ -152,7 +162,7 @@ TASKS["reacher_apg"] = {
     # -5, not -10: a motionless arm scores -11.8, so both learners pass -10 at their first
     # evaluation (then the ratio measures compile time); at -5 the arm must reach the target.
     "target": -5.0,
-    "fastrl": ["env=reacher", "algo=apg"],  # 10 updates (64k env steps) per evaluation
+    "fastrl": ["env=reacher", "algo=apg", *_every(10)],  # 10 updates (64k env steps) per evaluation
     "fastrl_steps": 2_048_000,
     "brax": (
         "--algo apg --env reacher --hidden 64 64 --set num_envs=128 horizon_length=50 learning_rate=3e-3"
@@ -202,7 +212,10 @@ def run_fastrl(
     task: dict, seed: int, steps: int, quick: bool, stop_at: float | None
 ) -> list[tuple[float, int, float]]:
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "fastrl.train", *task["fastrl"], f"seed={seed}", f"run_dir={tmp}/run",
+        overrides = task["fastrl"]
+        if quick:  # debug=quick's own chunks (an evaluation every 2 updates)
+            overrides = [o for o in overrides if not o.startswith("train.updates_per_chunk=")]
+        cmd = [sys.executable, "-m", "fastrl.train", *overrides, f"seed={seed}", f"run_dir={tmp}/run",
                f"train.total_env_steps={steps}", "logger=quiet"]  # fmt: skip
         if stop_at is not None:
             cmd.append(f"train.stop_at_return={stop_at}")

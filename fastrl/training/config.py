@@ -96,8 +96,13 @@ class TrainConfig:
 
     Fields:
       total_env_steps     environment steps of the whole run
-      updates_per_chunk   learner updates inside one compiled call (the logging cadence)
-      eval_every          evaluate every this many chunks (0: only at the end)
+      updates_per_chunk   learner updates per chunk, the logging cadence (None: sized by time,
+                          about ``chunk_seconds`` of training each, measured on the run's chunks)
+      chunk_seconds       with updates_per_chunk=None, the training time a chunk aims at
+      num_evals           evaluations over the run, evenly spaced in updates, the last at the end
+                          (used when eval_every is None)
+      eval_every          evaluate every this many chunks and after chunk 1 (0: only at the end;
+                          None: the num_evals schedule)
       eval_envs           episodes per evaluation (one per env, deterministic policy)
       stop_after_chunks   stop this invocation after this many chunks (resume continues it)
       stop_at_return      stop the run once every agent's deterministic evaluation return has
@@ -108,8 +113,10 @@ class TrainConfig:
     """
 
     total_env_steps: int = 10_000_000
-    updates_per_chunk: int = 10
-    eval_every: int = 1
+    updates_per_chunk: int | None = None
+    chunk_seconds: float = 10.0
+    num_evals: int = 10
+    eval_every: int | None = None
     eval_envs: int = 128
     stop_after_chunks: int | None = None
     stop_at_return: float | None = None
@@ -117,18 +124,22 @@ class TrainConfig:
     vmap_sweep: dict | None = None
 
     def __post_init__(self):
-        if self.total_env_steps < 1 or self.updates_per_chunk < 1 or self.eval_envs < 1:
-            raise ConfigError(
-                "train.total_env_steps, train.updates_per_chunk and train.eval_envs must be >= 1"
-            )
-        if self.eval_every < 0:
-            raise ConfigError("train.eval_every must be >= 0")
+        if self.total_env_steps < 1 or self.eval_envs < 1 or self.num_evals < 1:
+            raise ConfigError("train.total_env_steps, train.eval_envs and train.num_evals must be >= 1")
+        if self.updates_per_chunk is not None and self.updates_per_chunk < 1:
+            raise ConfigError("train.updates_per_chunk must be >= 1 (or null: chunks sized by time)")
+        if not self.chunk_seconds > 0:
+            raise ConfigError(f"train.chunk_seconds={self.chunk_seconds} must be > 0")
+        if self.eval_every is not None and self.eval_every < 0:
+            raise ConfigError("train.eval_every must be >= 0 (or null: the train.num_evals schedule)")
         if self.num_seeds < 1:
             raise ConfigError(f"train.num_seeds={self.num_seeds} must be >= 1")
-        if self.stop_at_return is not None and self.eval_every == 0:
+        only_at_end = self.eval_every == 0 or (self.eval_every is None and self.num_evals == 1)
+        if self.stop_at_return is not None and only_at_end:
+            which = "train.eval_every=0" if self.eval_every == 0 else "train.num_evals=1"
             raise ConfigError(
                 f"train.stop_at_return={self.stop_at_return} is checked at evaluations, but "
-                "train.eval_every=0 evaluates only at the end; set train.eval_every >= 1"
+                f"{which} evaluates only at the end; set train.eval_every >= 1 or train.num_evals >= 2"
             )
 
 
@@ -161,16 +172,22 @@ class CheckpointConfig:
     """Checkpointing (``checkpoint.*``).
 
     Fields:
-      every   save every this many chunks (the last chunk and Ctrl-C always save)
-      keep    checkpoints kept (older ones are deleted)
+      every     save every this many chunks (None: by time, see ``seconds``); the last chunk, a
+                stop and Ctrl-C always save
+      seconds   with every=None, save after the first chunk that ends this many seconds of
+                training after the last save
+      keep      checkpoints kept (older ones are deleted)
     """
 
-    every: int = 1
+    every: int | None = None
+    seconds: float = 60.0
     keep: int = 3
 
     def __post_init__(self):
-        if self.every < 1 or self.keep < 1:
-            raise ConfigError("checkpoint.every and checkpoint.keep must be >= 1")
+        if (self.every is not None and self.every < 1) or self.keep < 1:
+            raise ConfigError("checkpoint.every (or null: by time) and checkpoint.keep must be >= 1")
+        if not self.seconds > 0:
+            raise ConfigError(f"checkpoint.seconds={self.seconds} must be > 0")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,10 +1,15 @@
 """The training runner: a host loop over chunks, each chunk ONE compiled program.
 
-A chunk is ``lax.scan(learner.update, updates_per_chunk)`` jitted with the training state
-donated, so the simulator and the learner run without a host round trip per step. Between
-chunks the runner logs (TensorBoard, ``metrics.csv``, a progress line), evaluates the
-deterministic policy, and checkpoints. Ctrl-C asks the run to stop after the chunk in flight;
-it then saves a checkpoint and exits (a second Ctrl-C stops at once, without saving).
+A chunk is a loop of ``learner.update`` jitted once with the training state donated, so the
+simulator and the learner run without a host round trip per step. The number of updates is an
+argument of that one program: chunks are sized by time (about ``train.chunk_seconds`` each,
+from the last chunk's speed; the first is one update, so the first progress line comes
+seconds after the compile) unless ``train.updates_per_chunk`` fixes them, and a chunk boundary
+costs one call. Between chunks the runner prints a progress line, evaluates the
+deterministic policy on its own schedule (``train.num_evals`` or ``train.eval_every``), logs
+(TensorBoard, ``metrics.csv``) and checkpoints (by time or every ``checkpoint.every`` chunks).
+Ctrl-C asks the run to stop after the chunk in flight; it then saves a checkpoint and exits (a
+second Ctrl-C stops at once, without saving).
 
 ``_train`` is the loop; each concern is a small piece it calls: the run's setup (``_setup``:
 agents, learner, layout), its start (``_start``: a fresh or restored state), the compiled chunk
@@ -108,25 +113,27 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
     _claim_folder(run_dir, setup.config, record)  # only now does anything get written into it
     state = _place(setup, state)
     program = _compile_chunk(setup, state)
-    evaluation, pages = _Evaluation(setup), _ViewerPages(setup, run_dir)
+    evaluation, pages, sizer = _Evaluation(setup), _ViewerPages(setup, run_dir), _ChunkSizer(setup)
     _announce_start(setup, program, run_dir)
     outs = _open_outputs(setup, run_dir, progress.chunk, setup.agents.env_steps(state))
     status, row = "done", {}
     try:
         with _StopFlag() as stop:
-            while progress.chunk < setup.n_chunks:
-                t = time.perf_counter()
-                new_state, metrics = program.run(state)
-                rows = setup.agents.rows(metrics)
+            while not progress.done(setup):
+                n, t = sizer.next(progress), time.perf_counter()
+                new_state, sums = program.run(state, np.int32(n))
+                rows = setup.agents.rows(sums, n)
                 if _diverged(setup.agents, progress, rows):
                     status, state = "diverged", new_state  # reported, never saved
                     break
                 state, dt = new_state, time.perf_counter() - t
-                progress.advance(dt)
-                if evaluation.due(progress.chunk):
+                sizer.observe(n, dt)
+                progress.advance(dt, n)
+                row = _log_chunk(setup, progress, rows, outs, state, dt, n, program.compile_s)
+                if evaluation.due(progress, n):
                     evaluation(state, rows, progress)
-                pages(state, progress.chunk)
-                row = _log_chunk(setup, progress, rows, outs, state, dt, program.compile_s)
+                pages(state, progress)
+                row = _write_rows(setup, rows, outs)
                 if on_chunk is not None:
                     on_chunk(progress.chunk, row)
                 ending = _stop_reason(setup, progress, stop.set)
@@ -164,11 +171,13 @@ class _Agents:
         """How messages name agent ``i`` (nothing for a single run)."""
         return f"agent {self.specs[i].tag} " if self.batched else ""
 
-    def rows(self, metrics: dict) -> list[dict[str, float]]:
-        """Per agent, the chunk's scalars from the (updates_per_chunk[, n_agents]) update metrics."""
+    def rows(self, sums: dict, n: int) -> list[dict[str, float]]:
+        """Per agent, the chunk's scalars from the update metrics summed over its ``n`` updates
+        (each leaf with a leading agent axis in a batch)."""
+        sums = to_host(sums)
         if not self.batched:
-            return [_reduce(metrics)]
-        return [_reduce(jax.tree.map(lambda x, i=i: x[:, i], metrics)) for i in range(self.n)]
+            return [_reduce(sums, n)]
+        return [_reduce(jax.tree.map(lambda x, i=i: x[i], sums), n) for i in range(self.n)]
 
     def eval_key(self, chunk: int) -> jax.Array:
         """The key of the evaluation after ``chunk``: per agent, from its own seed."""
@@ -196,14 +205,14 @@ class _Setup:
     learner: Learner
     init_key: jax.Array
     steps_per_update: int
-    n_chunks: int
+    total_updates: int
     mesh: Mesh | None
     shardings: Any  # per-leaf NamedSharding of the state, or None on one device
 
     @property
-    def chunk_steps(self) -> int:
-        """Env steps of one chunk (per agent)."""
-        return self.cfg.train.updates_per_chunk * self.steps_per_update
+    def total_steps(self) -> int:
+        """Env steps of the whole run (per agent)."""
+        return self.total_updates * self.steps_per_update
 
 
 def _setup(cfg: RunConfig) -> _Setup:
@@ -214,17 +223,17 @@ def _setup(cfg: RunConfig) -> _Setup:
     # total updates (which set learning-rate schedules). Building is cheap; nothing is traced.
     steps_per_update = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, 1).env_steps_per_update
     total_updates = max(1, math.ceil(cfg.train.total_env_steps / steps_per_update))
-    k = cfg.train.updates_per_chunk
-    n_chunks = math.ceil(total_updates / k)
+    if (k := cfg.train.updates_per_chunk) is not None:  # fixed chunks: the budget in whole chunks
+        total_updates = math.ceil(total_updates / k) * k
     mesh = devices.mesh()
-    learner, init_key = scale.run_learner(cfg, specs, env, n_chunks * k, mesh)
+    learner, init_key = scale.run_learner(cfg, specs, env, total_updates, mesh)
     shardings = None
     if mesh is not None:
         abstract = jax.eval_shape(learner.init, init_key)
         shardings = scale.state_shardings(abstract, mesh, len(specs), learner.num_envs)
     return _Setup(cfg=cfg, config=cfg.to_dict(), env=env, agents=_Agents(specs), learner=learner,
-                  init_key=init_key, steps_per_update=steps_per_update, n_chunks=n_chunks, mesh=mesh,
-                  shardings=shardings)  # fmt: skip
+                  init_key=init_key, steps_per_update=steps_per_update, total_updates=total_updates,
+                  mesh=mesh, shardings=shardings)  # fmt: skip
 
 
 @dataclasses.dataclass
@@ -234,7 +243,10 @@ class _Progress:
 
     Fields:
       chunk        chunks done
+      updates      learner updates done
       wall         seconds of training (chunks only: no compile, evaluation or saving)
+      saved_wall   ``wall`` at the last checkpoint
+      train_return the training return of the latest chunk in which episodes ended
       watch        the collapse watch over evaluation returns
       reached      per agent: where its evaluation return first reached train.stop_at_return
       diverged     per agent: its losses went non-finite in this invocation (never saved)
@@ -242,31 +254,63 @@ class _Progress:
     """
 
     chunk: int
+    updates: int
     wall: float
     watch: CollapseWatch
     reached: list[dict | None]
     diverged: list[bool]
     start_chunk: int
+    saved_wall: float = 0.0
+    train_return: float = math.nan  # the latest chunk's in which an episode ended (not saved)
 
     @classmethod
     def fresh(cls, n_agents: int) -> _Progress:
-        return cls(0, 0.0, CollapseWatch(n_agents), [None] * n_agents, [False] * n_agents, 0)
+        return cls(0, 0, 0.0, CollapseWatch(n_agents), [None] * n_agents, [False] * n_agents, 0)
 
     @classmethod
     def from_meta(cls, meta: dict, n_agents: int) -> _Progress:
-        chunk = int(meta["chunk"])
+        chunk, wall = int(meta["chunk"]), float(meta["wall_s"])
+        # checkpoints from before time-sized chunks: every chunk was updates_per_chunk updates
+        updates = meta.get("updates")
+        if updates is None:
+            updates = chunk * int(meta["config"]["train"]["updates_per_chunk"])
         watch = CollapseWatch(n_agents, history=meta.get("eval_history"))
         reached = list(meta.get("reached") or [None] * n_agents)
-        return cls(chunk, float(meta["wall_s"]), watch, reached, [False] * n_agents, chunk)
+        return cls(chunk, int(updates), wall, watch, reached, [False] * n_agents, chunk, wall)
 
-    def advance(self, seconds: float) -> None:
+    def advance(self, seconds: float, updates: int) -> None:
         self.chunk += 1
+        self.updates += updates
         self.wall += seconds
+
+    def done(self, setup: _Setup) -> bool:
+        return self.updates >= setup.total_updates
 
     def meta(self, config: dict, env_steps: int) -> dict:
         """The checkpoint's metadata: the config and this position."""
-        return {"config": config, "chunk": self.chunk, "env_steps": env_steps, "wall_s": self.wall,
-                "eval_history": self.watch.history(), "reached": self.reached}  # fmt: skip
+        return {"config": config, "chunk": self.chunk, "updates": self.updates,
+                "env_steps": env_steps, "wall_s": self.wall, "eval_history": self.watch.history(),
+                "reached": self.reached}  # fmt: skip
+
+
+class _ChunkSizer:
+    """How many updates the next chunk runs: ``train.updates_per_chunk`` when fixed; else one
+    update first, then as many as the last chunk's speed fits in ``train.chunk_seconds``."""
+
+    def __init__(self, setup: _Setup):
+        self.fixed, self.seconds = setup.cfg.train.updates_per_chunk, setup.cfg.train.chunk_seconds
+        self.total = setup.total_updates
+        self.per_update: float | None = None
+
+    def next(self, progress: _Progress) -> int:
+        if self.fixed is not None:
+            n = self.fixed
+        else:
+            n = 1 if self.per_update is None else max(1, round(self.seconds / self.per_update))
+        return min(n, self.total - progress.updates)
+
+    def observe(self, n: int, seconds: float) -> None:
+        self.per_update = seconds / n
 
 
 def _open_checkpoints(cfg: RunConfig, run_dir: Path, resume: bool) -> Checkpointer:
@@ -319,17 +363,29 @@ class _Program:
 
 
 def _compile_chunk(setup: _Setup, state) -> _Program:
-    """``lax.scan`` of ``updates_per_chunk`` updates, jitted once with the state donated."""
-    k, shardings, update = setup.cfg.train.updates_per_chunk, setup.shardings, setup.learner.update
+    """``n`` updates in a loop (``n`` a traced argument: every chunk size runs the same program),
+    their metrics summed; jitted once with the state donated."""
+    shardings, t0, cache_before = setup.shardings, time.perf_counter(), compile_cache.counts()
+    # jit's trace cache: eval_shape traces the update once, the loop body reuses that trace
+    update = jax.jit(setup.learner.update)
+    metrics_shape = jax.eval_shape(update, state)[1]
 
-    def run_chunk(s):
-        s, metrics = jax.lax.scan(lambda s, _: update(s), s, None, length=k)
+    def run_chunk(s, n):
+        def body(_, carry):
+            s, sums = carry
+            s, metrics = update(s)
+            return s, jax.tree.map(lambda a, m: a + m.astype(a.dtype), sums, metrics)
+
+        zeros = jax.tree.map(
+            lambda m: jnp.zeros(m.shape, jnp.result_type(m.dtype, jnp.float32)), metrics_shape
+        )
+        s, sums = jax.lax.fori_loop(0, n, body, (s, zeros))
         if shardings is not None:  # keep the layout fixed from chunk to chunk
             s = jax.lax.with_sharding_constraint(s, shardings)
-        return s, metrics
+        return s, sums
 
-    t0, cache_before = time.perf_counter(), compile_cache.counts()
-    lowered = jax.jit(run_chunk, donate_argnums=0).lower(state)
+    count = jax.ShapeDtypeStruct((), jnp.int32)
+    lowered = jax.jit(run_chunk, donate_argnums=0).lower(state, count)
     trace_s = time.perf_counter() - t0
     compiled = lowered.compile()
     compile_s = time.perf_counter() - t0
@@ -338,12 +394,19 @@ def _compile_chunk(setup: _Setup, state) -> _Program:
 
 
 def _announce_start(setup: _Setup, program: _Program, run_dir: Path) -> None:
-    """The run's first line (size, compile, devices) and, off the env's own physics, a note."""
-    cfg, n = setup.cfg, setup.agents.n
+    """The run's first line (size, compile, devices) and, off the env's own physics, a note
+    (process 0 of a multi-host run only)."""
+    if jax.process_index() != 0:
+        return
+    cfg, n, k = setup.cfg, setup.agents.n, setup.cfg.train.updates_per_chunk
     batch_note = f" x {n} agents in one program" if setup.agents.batched else ""
+    size = f"updates x {setup.steps_per_update:,d} env steps{batch_note}"
+    if k is not None:
+        size = f"{setup.total_updates // k:,d} chunks x {k} {size}"
+    else:
+        size = f"{setup.total_updates:,d} {size} in chunks of ~{cfg.train.chunk_seconds:g}s"
     print(
-        f"[fastrl] {cfg.env.name} / {cfg.algo_name}: {setup.n_chunks} chunks x {cfg.train.updates_per_chunk} "
-        f"updates x {setup.steps_per_update:,d} env steps{batch_note}; chunk compiled in "
+        f"[fastrl] {cfg.env.name} / {cfg.algo_name}: {size}; chunk compiled in "
         f"{program.compile_s:.1f}s ({program.note}) on {scale.describe(setup.shardings, setup.mesh)}; "
         f"run dir {run_dir}"
     )
@@ -383,15 +446,22 @@ class _Evaluation:
         )
         self._evaluate = jax.jit(jax.vmap(evaluate) if setup.agents.batched else evaluate)
 
-    def due(self, chunk: int) -> bool:
-        """Whether chunk ``chunk`` ends with an evaluation (chunk 1 always does: metrics.csv
-        takes its columns from the first row), as does the last."""
-        every = self.setup.cfg.train.eval_every
-        return chunk in (1, self.setup.n_chunks) or bool(every and chunk % every == 0)
+    def due(self, progress: _Progress, n: int) -> bool:
+        """Whether the chunk just done (of ``n`` updates) ends with an evaluation: the last always
+        does; then every ``train.eval_every`` chunks and chunk 1, or, with eval_every None, the
+        chunks that cross one of ``train.num_evals`` evenly spaced points of the run."""
+        train, total = self.setup.cfg.train, self.setup.total_updates
+        if progress.done(self.setup):
+            return True
+        if train.eval_every is not None:
+            every = train.eval_every
+            return progress.chunk == 1 or bool(every and progress.chunk % every == 0)
+        before, after = progress.updates - n, progress.updates
+        return before * train.num_evals // total < after * train.num_evals // total
 
     def __call__(self, state, rows: list[dict], progress: _Progress) -> None:
         setup, n = self.setup, self.setup.agents.n
-        key = setup.agents.eval_key(progress.chunk)
+        key, t0 = setup.agents.eval_key(progress.chunk), time.perf_counter()
         ret, length, final = to_host(self._evaluate(setup.learner.policy_params(state), key))
         ret, length = (np.asarray(x).reshape(n, -1) for x in (ret, length))
         final = {k: np.asarray(v).reshape(n, -1) for k, v in final.items()}
@@ -402,6 +472,12 @@ class _Evaluation:
             r.update({f"eval/{k}": float(v[i].mean()) for k, v in final.items()})
         self._watch_collapse(rows, progress)
         self._note_reached(state, rows, progress)
+        if setup.cfg.logger.progress and jax.process_index() == 0:
+            mean = float(np.mean([r["eval/episode_return"] for r in rows]))
+            who = f"mean of {n} agents " if setup.agents.batched else ""
+            print(f"[fastrl] evaluation at {setup.agents.env_steps(state):,d} steps: {who}return "
+                  f"{mean:.2f} ({setup.cfg.train.eval_envs} episodes, {time.perf_counter() - t0:.1f}s)",
+                  flush=True)  # fmt: skip
 
     def _watch_collapse(self, rows: list[dict], progress: _Progress) -> None:
         watch = progress.watch
@@ -437,8 +513,9 @@ class _ViewerPages:
                 setup.env, setup.learner.act, title, batched=setup.agents.batched
             )
 
-    def __call__(self, state, chunk: int) -> None:
-        if self.write is None or not (chunk == self.setup.n_chunks or chunk % self.every == 0):
+    def __call__(self, state, progress: _Progress) -> None:
+        chunk = progress.chunk
+        if self.write is None or not (progress.done(self.setup) or chunk % self.every == 0):
             return
         params = to_host(self.setup.learner.policy_params(state))  # every process gathers
         if jax.process_index() == 0:
@@ -460,28 +537,40 @@ def _open_outputs(setup: _Setup, run_dir: Path, chunk: int, env_steps: int) -> l
 
 
 def _log_chunk(setup: _Setup, progress: _Progress, rows: list[dict], outs: list[_Outputs], state,
-               dt: float, compile_s: float) -> dict:  # fmt: skip
-    """Completes and writes each agent's row; prints and returns the run's row (a batch's means)."""
-    for i, (r, out) in enumerate(zip(rows, outs, strict=True)):
+               dt: float, n: int, compile_s: float) -> dict:  # fmt: skip
+    """Completes each agent's row of the chunk just run (``n`` updates in ``dt`` seconds) and
+    prints the progress line at once, before any evaluation; returns the run's row."""
+    for i, r in enumerate(rows):
         r.update(chunk=progress.chunk, env_steps=setup.agents.env_steps(state, i), wall_s=progress.wall,
                  time_unix=time.time())  # fmt: skip
-        r["perf/env_steps_per_s"] = setup.chunk_steps / dt
+        r["perf/env_steps_per_s"] = n * setup.steps_per_update / dt
         r["perf/compile_s"] = compile_s
         if setup.agents.batched:
             r["train/diverged"] = float(progress.diverged[i])
-        out.log(r)
     row = _mean_row(rows, setup.agents.n) if setup.agents.batched else rows[0]
+    progress.train_return = row.get("train/episode_return", progress.train_return)
     if setup.cfg.logger.progress and jax.process_index() == 0:
-        print(_progress(row, setup.n_chunks * setup.chunk_steps, progress.wall), flush=True)
+        print(_progress(row, setup.total_steps, progress.wall, progress.train_return), flush=True)
     return row
 
 
+def _write_rows(setup: _Setup, rows: list[dict], outs: list[_Outputs]) -> dict:
+    """Writes each agent's completed row (evaluation included) to its outputs; returns the run's
+    row (a batch's means)."""
+    for r, out in zip(rows, outs, strict=True):
+        out.log(r)
+    return _mean_row(rows, setup.agents.n) if setup.agents.batched else rows[0]
+
+
 def _checkpoint(ckpt: Checkpointer, setup: _Setup, progress: _Progress, state, ending: bool) -> None:
-    """Saves the state after the chunk just done when the run ends here, at the last chunk and
-    every ``checkpoint.every`` chunks."""
-    chunk = progress.chunk
-    if ending or chunk == setup.n_chunks or chunk % setup.cfg.checkpoint.every == 0:
-        ckpt.save(chunk, state, progress.meta(setup.config, setup.agents.env_steps(state)))
+    """Saves the state after the chunk just done when the run ends here, at the last chunk, and
+    every ``checkpoint.every`` chunks or (every None) once ``checkpoint.seconds`` of training
+    have passed since the last save."""
+    every, seconds = setup.cfg.checkpoint.every, setup.cfg.checkpoint.seconds
+    due = progress.chunk % every == 0 if every is not None else progress.wall - progress.saved_wall >= seconds
+    if ending or progress.done(setup) or due:
+        ckpt.save(progress.chunk, state, progress.meta(setup.config, setup.agents.env_steps(state)))
+        progress.saved_wall = progress.wall
 
 
 def _stop_reason(setup: _Setup, progress: _Progress, interrupted: bool) -> str | None:
@@ -505,7 +594,13 @@ def _announce_end(setup: _Setup, progress: _Progress, ending: str, interrupted: 
               f"chunk {progress.chunk} ({progress.wall:.0f}s of training); stopping", flush=True)  # fmt: skip
         return
     why = "Ctrl-C" if interrupted else f"train.stop_after_chunks={train.stop_after_chunks}"
-    print(f"[fastrl] stopped by {why} after chunk {progress.chunk} of {setup.n_chunks}, checkpoint saved; "
+    k = setup.cfg.train.updates_per_chunk
+    of = (
+        f"of {setup.total_updates // k}"
+        if k is not None
+        else f"({progress.updates:,d} of {setup.total_updates:,d} updates)"
+    )
+    print(f"[fastrl] stopped by {why} after chunk {progress.chunk} {of}, checkpoint saved; "
           f"continue with: python -m fastrl.train resume={run_dir}", flush=True)  # fmt: skip
 
 
@@ -558,9 +653,11 @@ class _StopFlag:
             signal.signal(signal.SIGINT, self._previous)
 
 
-def _reduce(metrics: dict) -> dict[str, float]:
-    """Per-chunk scalars from the (updates_per_chunk,) stacked update metrics."""
-    m = {k: np.asarray(v) for k, v in to_host(metrics).items()}
+def _reduce(sums: dict, n: int) -> dict[str, float]:
+    """Per-chunk scalars from the update metrics summed over the chunk's ``n`` updates: episode
+    counts and returns add up, every other metric is its mean over the updates (and over any
+    axes of its own)."""
+    m = {k: np.asarray(v) for k, v in sums.items()}
     out = {}
     episodes = float(m.pop("train/episodes").sum())
     ret_sum = float(m.pop("train/episode_return_sum").sum())
@@ -568,7 +665,7 @@ def _reduce(metrics: dict) -> dict[str, float]:
     if episodes > 0:
         out["train/episode_return"] = ret_sum / episodes
     for k, v in m.items():
-        out[k] = float(np.mean(v))
+        out[k] = float(np.mean(v)) / n
     return out
 
 
@@ -610,14 +707,33 @@ class _Outputs:
                     self.writer.add_scalar(k, v, step)
             self.writer.flush()
         if self.cfg.logger.csv:
-            new = not self.csv_path.exists()
-            fields = None if new else next(csv.reader(self.csv_path.open()))
-            fields = fields or list(row)
-            with self.csv_path.open("a", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-                if new:
-                    w.writeheader()
-                w.writerow({k: row.get(k, "") for k in fields})
+            self._append_csv(row)
+
+    def _append_csv(self, row: dict) -> None:
+        """Appends ``row``; a column first seen now (the first evaluation's, an episode return)
+        extends the header, the earlier rows keeping it empty."""
+        fields = []
+        if self.csv_path.exists():
+            with self.csv_path.open() as f:
+                fields = next(csv.reader(f), [])
+        extra = [k for k in row if k != "agents" and k not in fields]
+        if extra and fields:
+            with self.csv_path.open() as f:
+                old = list(csv.DictReader(f))
+            fields += extra
+            tmp = self.csv_path.with_name(self.csv_path.name + ".tmp")
+            with tmp.open("w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=fields)
+                w.writeheader()
+                w.writerows(old)
+            os.replace(tmp, self.csv_path)
+        new = not fields
+        fields = fields or extra
+        with self.csv_path.open("a", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+            if new:
+                w.writeheader()
+            w.writerow({k: row.get(k, "") for k in fields})
 
     def plot(self) -> None:
         if not (self.cfg.logger.plot and self.cfg.logger.csv and self.csv_path.exists()):
@@ -631,17 +747,16 @@ class _Outputs:
             self.writer.close()
 
 
-def _progress(row: dict, total_steps: int, elapsed: float) -> str:
+def _progress(row: dict, total_steps: int, elapsed: float, train_return: float) -> str:
     steps = int(row["env_steps"])
     frac = min(1.0, steps / total_steps)
     rate = row.get("perf/env_steps_per_s", float("nan"))
     eta = (total_steps - steps) / rate if rate and rate > 0 else float("nan")
     bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
-    ret = row.get("eval/episode_return", row.get("train/episode_return", float("nan")))
-    which = "eval" if "eval/episode_return" in row else "train"
+    ret = train_return  # nan until an episode has ended
     return (
         f"[{bar}] {100 * frac:5.1f}% {steps:>11,d} steps | {rate:>9,.0f} steps/s | "
-        f"{which} return {ret:9.2f} | {elapsed:7.0f}s elapsed, ETA {eta:6.0f}s"
+        f"train return {ret:9.2f} | {elapsed:7.0f}s elapsed, ETA {eta:6.0f}s"
     )
 
 

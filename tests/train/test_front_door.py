@@ -191,6 +191,7 @@ def test_ppo_improves_inverted_pendulum_within_a_minute(tmp_path, capsys):
     # Told to stop at a return of 100 (a random policy survives ~5-20 steps), the run stops at its
     # first evaluation that gets there, within a minute of training, saves it and says where.
     overrides = ["env=inverted_pendulum", "logger=quiet", "train.total_env_steps=40000"]
+    overrides += ["train.updates_per_chunk=10", "train.eval_every=1"]
     out = run(compose_cfg([*overrides, f"run_dir={tmp_path}", "train.stop_at_return=100"]))
     assert out["status"] == "reached" and out["wall_s"] < 60
     evals = [row["eval/episode_return"] for row in _csv_rows(tmp_path)]
@@ -198,6 +199,30 @@ def test_ppo_improves_inverted_pendulum_within_a_minute(tmp_path, capsys):
     assert evals[-1] == out["reached"]["eval_return"] >= 100 > max(evals[:-1], default=0)
     assert "evaluation return reached train.stop_at_return=100 by chunk" in capsys.readouterr().out
     assert sorted(int(p.name) for p in (tmp_path / "checkpoints").iterdir())[-1] == out["chunks"]
+
+
+def test_chunks_sized_by_time_train_the_same_agent(tmp_path, capsys):
+    # With train.updates_per_chunk=null a chunk runs as many updates as fit in chunk_seconds,
+    # the first just one; the size is an argument of one compiled program, so where the chunks
+    # end changes nothing in training. Evaluations follow train.num_evals (evenly spaced in
+    # updates), checkpoints checkpoint.seconds, and metrics.csv gains the evaluation columns
+    # when the first evaluation comes.
+    base = ["env=inverted_pendulum", "debug=quick", "logger=quiet", "train.total_env_steps=1024"]  # 8 updates
+    run(compose_cfg([*base, f"run_dir={tmp_path}/fixed"]))  # 4 chunks of 2 updates
+    timed = ["train.updates_per_chunk=null", "train.eval_every=null", "train.num_evals=4"]
+    out = run(compose_cfg([*base, *timed, "train.chunk_seconds=1e-9", "checkpoint.seconds=1e9",
+                           f"run_dir={tmp_path}/ones"]))  # fmt: skip
+    assert out["status"] == "done" and out["chunks"] == 8 and out["env_steps"] == 1024
+    for x, y in zip(_weights_of(tmp_path / "fixed"), _weights_of(tmp_path / "ones"), strict=True):
+        np.testing.assert_array_equal(x, y)
+    rows = _csv_rows(tmp_path / "ones")
+    assert [r["env_steps"] for r in rows if "eval/episode_return" in r] == [256, 512, 768, 1024]
+    assert "eval/episode_return" not in rows[0] and len(rows) == 8
+    assert sorted(p.name for p in (tmp_path / "ones" / "checkpoints").iterdir()) == ["8"]  # the last only
+    out = run(compose_cfg([*base, *timed, "train.chunk_seconds=1e9", f"run_dir={tmp_path}/one"]))
+    assert out["chunks"] == 2  # one update, then the other seven in one chunk
+    for x, y in zip(_weights_of(tmp_path / "fixed"), _weights_of(tmp_path / "one"), strict=True):
+        np.testing.assert_array_equal(x, y)
 
 
 def _csv_rows(run_dir):

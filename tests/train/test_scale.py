@@ -134,20 +134,67 @@ print(json.dumps({"devices": jax.device_count(), "status": out["status"]}))
 """
 
 
-def test_two_host_devices_give_the_one_device_result(tmp_path):
+_COMPARED = ("loss/policy_loss", "loss/value_loss", "train/episode_return", "eval/episode_return")
+
+
+def _device_run(run_dir: Path, n: int) -> subprocess.CompletedProcess:
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}", PYTHONPATH=str(ROOT))
+    cmd = [sys.executable, "-c", _SHARD_SCRIPT, str(run_dir), *QUICK]
+    return subprocess.run(cmd, check=True, env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def two_device_run(tmp_path_factory) -> Path:
+    """The QUICK run in one process on 2 CPU devices (env batch split, gradients all-reduced)."""
+    run_dir = tmp_path_factory.mktemp("dev2") / "run"
+    out = _device_run(run_dir, 2)
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == {"devices": 2, "status": "done"}
+    assert "2 cpu devices" in out.stdout
+    return run_dir
+
+
+def test_two_host_devices_give_the_one_device_result(tmp_path, two_device_run):
     """The same run on 1 and on 2 CPU devices (the env batch split, gradients all-reduced): equal
     curves. (Agent batches split by agent share nothing across devices.)"""
-    runs = {}
-    for n in (1, 2):
-        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}", PYTHONPATH=str(ROOT))
-        run_dir = tmp_path / f"dev{n}"
-        cmd = [sys.executable, "-c", _SHARD_SCRIPT, str(run_dir), *QUICK]
-        out = subprocess.run(cmd, check=True, env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
-        assert json.loads(out.stdout.strip().splitlines()[-1]) == {"devices": n, "status": "done"}
-        assert (f"{n} cpu devices" in out.stdout) == (n > 1)
-        runs[n] = sorted(run_dir.rglob("metrics.csv"))
+    out = _device_run(tmp_path / "dev1", 1)
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == {"devices": 1, "status": "done"}
+    assert "cpu devices" not in out.stdout
+    runs = {n: sorted(d.rglob("metrics.csv")) for n, d in ((1, tmp_path / "dev1"), (2, two_device_run))}
     assert len(runs[1]) == len(runs[2]) == 1
     for a, b in zip(runs[1], runs[2], strict=True):
         ma, mb = report.read_metrics(a), report.read_metrics(b)
-        for key in ("loss/policy_loss", "loss/value_loss", "train/episode_return", "eval/episode_return"):
+        for key in _COMPARED:
             np.testing.assert_allclose(ma[key], mb[key], rtol=1e-4, atol=1e-5, err_msg=key)
+
+
+def test_two_processes_train_as_one_process_on_two_devices(tmp_path, two_device_run):
+    """Multi-host training, two local processes: ``jax.distributed`` on the loopback address,
+    one CPU device each, launched as a cluster would launch them (``distributed=true`` and the
+    FASTRL_COORDINATOR / FASTRL_NUM_PROCESSES / FASTRL_PROCESS_ID variables). The run equals the
+    one-process run on 2 devices to float rounding, and process 0 alone writes the outputs."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    run_dir = tmp_path / "run"
+    cmd = [sys.executable, "-m", "fastrl.train", *QUICK, "distributed=true", f"hydra.run.dir={run_dir}"]
+    procs = []
+    for i in range(2):
+        env = dict(os.environ, PYTHONPATH=str(ROOT), FASTRL_COORDINATOR=f"127.0.0.1:{port}",
+                   FASTRL_NUM_PROCESSES="2", FASTRL_PROCESS_ID=str(i), FASTRL_CPU_DEVICES="1")  # fmt: skip
+        env.pop("XLA_FLAGS", None)
+        procs.append(
+            subprocess.Popen(
+                cmd, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+            )
+        )
+    outs = [p.communicate(timeout=600)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    assert "chunk compiled" in outs[0] and "on 2 cpu devices" in outs[0]  # the start line
+    assert "chunk compiled" not in outs[1]  # process 0 alone reports
+    ma, mb = report.read_metrics(run_dir / "metrics.csv"), report.read_metrics(two_device_run / "metrics.csv")
+    assert len(ma["chunk"]) == len(mb["chunk"]) == 4  # one row per chunk: one process wrote them
+    for key in _COMPARED:
+        np.testing.assert_allclose(ma[key], mb[key], rtol=1e-4, atol=1e-5, err_msg=key)
+    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["4"]
