@@ -50,3 +50,19 @@ def to_host(tree: Any) -> Any:
     if jax.process_count() == 1:
         return jax.device_get(tree)
     return multihost_utils.process_allgather(tree, tiled=True)
+
+
+def agreed(value: int) -> int:
+    """Process 0's ``value`` in every process (``value`` itself with one process): host-side
+    decisions that every process must take alike, such as how many updates the next chunk runs
+    or whether to save now, are taken by process 0."""
+    if jax.process_count() == 1:
+        return value
+    return int(multihost_utils.broadcast_one_to_all(np.int32(value)))
+
+
+def any_process(flag: bool) -> bool:
+    """Whether ``flag`` is set in any process (``flag`` itself with one process)."""
+    if jax.process_count() == 1:
+        return flag
+    return bool(np.any(multihost_utils.process_allgather(np.int32(flag))))

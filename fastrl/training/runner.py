@@ -136,6 +136,7 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
                 row = _write_rows(setup, rows, outs)
                 if on_chunk is not None:
                     on_chunk(progress.chunk, row)
+                stop.set = devices.any_process(stop.set)  # Ctrl-C in one process stops them all
                 ending = _stop_reason(setup, progress, stop.set)
                 _checkpoint(ckpt, setup, progress, state, ending is not None)
                 if ending:
@@ -305,8 +306,10 @@ class _ChunkSizer:
     def next(self, progress: _Progress) -> int:
         if self.fixed is not None:
             n = self.fixed
-        else:
-            n = 1 if self.per_update is None else max(1, round(self.seconds / self.per_update))
+        else:  # by time: process 0's measurement decides for all processes
+            n = devices.agreed(
+                1 if self.per_update is None else max(1, round(self.seconds / self.per_update))
+            )
         return min(n, self.total - progress.updates)
 
     def observe(self, n: int, seconds: float) -> None:
@@ -567,7 +570,10 @@ def _checkpoint(ckpt: Checkpointer, setup: _Setup, progress: _Progress, state, e
     every ``checkpoint.every`` chunks or (every None) once ``checkpoint.seconds`` of training
     have passed since the last save."""
     every, seconds = setup.cfg.checkpoint.every, setup.cfg.checkpoint.seconds
-    due = progress.chunk % every == 0 if every is not None else progress.wall - progress.saved_wall >= seconds
+    if every is not None:
+        due = progress.chunk % every == 0
+    else:  # by time: process 0's clock decides for all processes (all of them save together)
+        due = bool(devices.agreed(progress.wall - progress.saved_wall >= seconds))
     if ending or progress.done(setup) or due:
         ckpt.save(progress.chunk, state, progress.meta(setup.config, setup.agents.env_steps(state)))
         progress.saved_wall = progress.wall

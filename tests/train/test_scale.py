@@ -178,7 +178,17 @@ def test_two_processes_train_as_one_process_on_two_devices(tmp_path, two_device_
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
     run_dir = tmp_path / "run"
-    cmd = [sys.executable, "-m", "fastrl.train", *QUICK, "distributed=true", f"hydra.run.dir={run_dir}"]
+    # chunks sized by time and checkpoints by time, decided by process 0 for both processes
+    timed = ["train.updates_per_chunk=null", "train.chunk_seconds=0.2", "checkpoint.seconds=0.3"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "fastrl.train",
+        *QUICK,
+        *timed,
+        "distributed=true",
+        f"hydra.run.dir={run_dir}",
+    ]
     procs = []
     for i in range(2):
         env = dict(os.environ, PYTHONPATH=str(ROOT), FASTRL_COORDINATOR=f"127.0.0.1:{port}",
@@ -194,7 +204,12 @@ def test_two_processes_train_as_one_process_on_two_devices(tmp_path, two_device_
     assert "chunk compiled" in outs[0] and "on 2 cpu devices" in outs[0]  # the start line
     assert "chunk compiled" not in outs[1]  # process 0 alone reports
     ma, mb = report.read_metrics(run_dir / "metrics.csv"), report.read_metrics(two_device_run / "metrics.csv")
-    assert len(ma["chunk"]) == len(mb["chunk"]) == 4  # one row per chunk: one process wrote them
-    for key in _COMPARED:
-        np.testing.assert_allclose(ma[key], mb[key], rtol=1e-4, atol=1e-5, err_msg=key)
-    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["4"]
+    assert list(ma["chunk"]) == list(range(1, len(ma["chunk"]) + 1))  # one row per chunk: one writer
+    assert ma["env_steps"][-1] == mb["env_steps"][-1] == 1024
+    # where the chunks end changes nothing: the final evaluation and the trained weights agree
+    np.testing.assert_allclose(ma["eval/episode_return"][-1], mb["eval/episode_return"][-1], rtol=1e-4)
+    from fastrl.policy import load_run
+
+    a, b = (jax.tree.leaves(load_run(d)[-1]) for d in (run_dir, two_device_run))
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_allclose(np.asarray(x, float), np.asarray(y, float), rtol=1e-4, atol=1e-5)

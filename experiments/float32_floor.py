@@ -1,0 +1,177 @@
+"""How closely can any float32 simulation follow MuJoCo C (float64) on the robot scenes?
+
+    python experiments/float32_floor.py            # every loading scene with a free root (~2 min)
+    python experiments/float32_floor.py --scenes g1 apollo
+
+``robot_coverage.py`` asks fastrl's float32 root to stay within 1 cm of MuJoCo C's over 2 s from
+the first keyframe with its ``ctrl`` held. This script measures, with MuJoCo C alone (float64
+throughout), what that bar asks of float32 on each scene, so that a miss can be told apart from
+an engine error:
+
+    per step   the state (qpos, qvel, warm start) rounded to float32 before every step: the
+               rounding a float32 state pays, with float64 arithmetic everywhere else
+    once       the state rounded to float32 once, at one time t0, and never again; reported is
+               the worst t0 of ``--starts`` evenly spaced ones, with that t0
+    1e-9       instead of the rounding, qvel perturbed once by 1e-9 (normal, per dof) at each t0:
+               a perturbation 100x below float32's resolution of the state
+
+Each column is the root's largest distance (mm) from the unperturbed trajectory over the
+horizon. Where ``once`` passes 1 cm, float32's resolution of the state at that instant alone
+parts the trajectories by more than the bar, whatever the arithmetic after it. The growth
+factor (``once`` over the 1e-7 relative size of the rounding) tells an unstable motion
+(a robot toppling from a held pose: a 1e-9 kick grows too) from a discrete event (a contact
+that begins one step earlier or later, a solver exit decided by a tolerance: the 1e-9 kick
+stays small while the float32 rounding flips it).
+
+Writes ``experiments/results/float32_floor.{md,json}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import pathlib
+import platform
+import sys
+
+import mujoco
+import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import robot_scenes  # noqa: E402
+
+RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+BAR_MM = 10.0
+
+
+def _initial(mj: mujoco.MjModel) -> mujoco.MjData:
+    d = mujoco.MjData(mj)
+    if mj.nkey:
+        mujoco.mj_resetDataKeyframe(mj, d, 0)
+    else:
+        mujoco.mj_forward(mj, d)
+    return d
+
+
+def _root(mj: mujoco.MjModel) -> np.ndarray | None:
+    free = np.flatnonzero(mj.jnt_type == mujoco.mjtJoint.mjJNT_FREE)
+    return None if not free.size else mj.jnt_qposadr[free[0]] + np.arange(3)
+
+
+def _round(d: mujoco.MjData) -> None:
+    for x in (d.qpos, d.qvel, d.qacc_warmstart):
+        x[:] = x.astype(np.float32)
+
+
+def scene(mj: mujoco.MjModel, seconds: float, starts: int) -> dict | None:
+    """The three drifts (mm) of one scene, or None without a free root."""
+    root = _root(mj)
+    if root is None:
+        return None
+    steps = int(round(seconds / mj.opt.timestep))
+    d = _initial(mj)
+    saved, ref, ncon = [], np.empty((steps, 3)), np.empty(steps, int)
+    for t in range(steps):
+        saved.append((d.qpos.copy(), d.qvel.copy(), d.qacc_warmstart.copy(), d.time))
+        mujoco.mj_step(mj, d)
+        ref[t], ncon[t] = d.qpos[root], d.ncon
+    ctrl = d.ctrl.copy()
+
+    def drift(t0: int, perturb, every_step: bool = False) -> float:
+        """The root's largest distance (mm) from ``ref`` after ``perturb`` at step t0 (and
+        before every later step too with ``every_step``)."""
+        e = mujoco.MjData(mj)
+        e.ctrl[:] = ctrl
+        e.qpos[:], e.qvel[:], e.qacc_warmstart[:], e.time = saved[t0]
+        worst = 0.0
+        for t in range(t0, steps):
+            if every_step or t == t0:
+                perturb(e)
+            mujoco.mj_step(mj, e)
+            worst = max(worst, float(np.linalg.norm(e.qpos[root] - ref[t])))
+        return 1e3 * worst
+
+    rng = np.random.default_rng(0)
+    t0s = np.linspace(0, steps - 1, starts, dtype=int)
+    once = [drift(t0, _round) for t0 in t0s]
+    kick = [drift(t0, lambda e: e.qvel.__iadd__(1e-9 * rng.standard_normal(mj.nv))) for t0 in t0s]
+    worst = int(np.argmax(once))
+    return {
+        "steps": steps,
+        "root_z_start": float(ref[0, 2]),
+        "root_z_min": float(ref[:, 2].min()),
+        "contacts_min_max": [int(ncon.min()), int(ncon.max())],
+        "per_step_mm": drift(0, _round, every_step=True),
+        "once_mm": once[worst],
+        "once_t0_s": float(t0s[worst] * mj.opt.timestep),
+        "kick_mm": max(kick),
+    }
+
+
+def markdown(rows: dict, meta: dict) -> str:
+    fails = [n for n, r in rows.items() if r["once_mm"] > BAR_MM]
+    out = [
+        "# The float32 floor: how far float32 rounding alone moves MuJoCo C's robot roots",
+        "",
+        f"{meta['date']}, {meta['machine']}; MuJoCo {meta['mujoco']}. Command: `{meta['command']}`.",
+        "",
+        f"- **{len(rows)} scenes with a free root; in {len(fails)}, rounding the state to float32 once** "
+        f"moves the root by more than {BAR_MM:g} mm within {meta['seconds']:g} s (MuJoCo C, float64 "
+        "arithmetic): no float32 simulation can be held to 1 cm of MuJoCo C's float64 trajectory there.",
+        "- Columns: root distance (mm) from the unperturbed float64 trajectory, largest over the "
+        "horizon. *per step*: state rounded to float32 before every step. *once*: rounded once, at "
+        "the worst of the start times (t0 in s). *1e-9*: qvel kicked once by 1e-9 instead, worst "
+        "start time. z: the root's height at the start and its lowest (a humanoid whose keyframe "
+        "pose is held without a controller falls; the feet-only scenes let the body sink through "
+        "the floor). Contacts: fewest and most active contacts over the horizon.",
+        "",
+        "| scene | steps | root z start / min (m) | contacts | per step (mm) | once (mm) | once t0 (s) "
+        "| 1e-9 (mm) |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for name, r in rows.items():
+        lo, hi = r["contacts_min_max"]
+        out.append(
+            f"| `{name}` | {r['steps']} | {r['root_z_start']:.2f} / {r['root_z_min']:.2f} | {lo}-{hi} | "
+            f"{r['per_step_mm']:.3g} | {r['once_mm']:.3g} | {r['once_t0_s']:.2f} | {r['kick_mm']:.2g} |"
+        )
+    return "\n".join(out) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", nargs="*", help="only scenes whose name contains one of these")
+    parser.add_argument("--seconds", type=float, default=2.0)
+    parser.add_argument("--starts", type=int, default=10, help="start times of the one-off perturbations")
+    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    args = parser.parse_args()
+    from fastrl import physics  # which scenes fastrl loads (the ones the 1 cm bar applies to)
+
+    rows = {}
+    for name, path in robot_scenes.scene_paths().items():
+        if args.scenes and not any(k in name for k in args.scenes):
+            continue
+        mj = mujoco.MjModel.from_xml_path(str(path))
+        try:
+            physics.model_from_mujoco(mj)
+        except physics.UnsupportedFeatureError:
+            continue
+        row = scene(mj, args.seconds, args.starts)
+        if row is not None:
+            rows[name] = row
+            print(f"{name}: {row}", flush=True)
+    meta = {
+        "date": datetime.date.today().isoformat(),
+        "machine": platform.machine(),
+        "mujoco": mujoco.__version__,
+        "seconds": args.seconds,
+        "command": "python experiments/float32_floor.py " + " ".join(sys.argv[1:]),
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "float32_floor.json").write_text(json.dumps({"meta": meta, "scenes": rows}, indent=1))
+    (args.out / "float32_floor.md").write_text(markdown(rows, meta))
+
+
+if __name__ == "__main__":
+    main()
