@@ -264,30 +264,72 @@ def solve_m(m: Model, factor: tuple[jax.Array, jax.Array], vec: jax.Array) -> ja
     return _solve_factored(ancestors(m), factor, vec)
 
 
-# From this many dofs a dense structure is factorised by LAPACK's Cholesky (``potrf``, looped
-# over the batch by XLA:CPU) instead of the unrolled elimination, whose ~nv^3/6 scalar steps each
-# become a small loop over the batch. Measured at batch 1024 (factor + solve, us/env, unrolled vs
-# LAPACK): nv 6 0.16 vs 0.34, 9 0.29 vs 0.83, 11 0.48 vs 0.87, 14 2.1 vs 0.95, 23 4.4 vs 1.8; and
-# the unrolled form of nv 23 took 7 s to compile, LAPACK's 0.4 s. Tree structures stay unrolled
-# (the Ant's 14-dof Hessian: 0.56 unrolled vs 0.89 LAPACK).
+# From this many dofs a dense structure is factorised by a Cholesky (``dense_solver``: LAPACK's,
+# or a column-wise one with several devices) instead of the elementwise elimination, whose
+# ~nv^3/6 scalar steps each become a small loop over the batch. Measured at batch 1024 (factor +
+# solve, us/env, elementwise vs LAPACK): nv 6 0.16 vs 0.34, 9 0.29 vs 0.83, 11 0.48 vs 0.87, 14
+# 2.1 vs 0.95, 23 4.4 vs 1.8; and the elementwise form of nv 23 took 7 s to compile, LAPACK's
+# 0.4 s. Tree structures stay elementwise (the Ant's 14-dof Hessian: 0.56 vs 0.89 LAPACK).
 DENSE_CHOLESKY_MIN_DOFS = 14
 
 
-def uses_lapack(anc: tuple[tuple[int, ...], ...]) -> bool:
-    """Whether ``solve_structured`` factorises this structure with LAPACK's Cholesky."""
+def dense_solver(anc: tuple[tuple[int, ...], ...]) -> str | None:
+    """How ``solve_structured`` factorises this structure: "lapack" (``lax.linalg.cholesky``) or
+    "columns" (``_dense_cholesky``) for a large dense one, None for the elementwise elimination.
+    LAPACK only in a process with one device: with several XLA:CPU devices a program holding its
+    calls deadlocked (seen on 2 devices, the Humanoid's PPO chunk: every thread idle), and the
+    column-wise form, ~20% slower on the Humanoid's step (357 against 295 us/env at batch 256),
+    runs there."""
     dense = all(len(chain) == k for k, chain in enumerate(anc))
-    return dense and len(anc) >= DENSE_CHOLESKY_MIN_DOFS
+    if not (dense and len(anc) >= DENSE_CHOLESKY_MIN_DOFS):
+        return None
+    return "lapack" if jax.device_count() == 1 else "columns"
+
+
+def _dense_cholesky(qm: jax.Array) -> jax.Array:
+    """The lower Cholesky factor ``c`` of ``qm`` (``qm = c c^T``): right-looking, one column per
+    unrolled step, each a rank-1 update of the shrinking trailing block (~nv vector ops, not the
+    ~nv^3/6 scalar ones of an elementwise elimination)."""
+    n = qm.shape[-1]
+    trailing, cols = jnp.asarray(qm), []
+    for k in range(n):
+        pivot = jnp.sqrt(trailing[0, 0])
+        below = trailing[1:, 0] / pivot
+        cols.append(jnp.concatenate([jnp.zeros(k, qm.dtype), pivot[None], below]))
+        trailing = trailing[1:, 1:] - below[:, None] * below[None, :]
+    return jnp.stack(cols, axis=1)
+
+
+def _dense_cho_solve(c: jax.Array, vec: jax.Array) -> jax.Array:
+    """``(c c^T)^-1 vec``: forward then back substitution, column-oriented (one unrolled axpy per
+    row of ``c``)."""
+    n = c.shape[-1]
+    r, y = jnp.asarray(vec), []
+    for i in range(n):  # c y = vec
+        y.append(r[i] / c[i, i])
+        r = r - c[:, i] * y[i]  # rows above i are done: c[j < i, i] is 0
+    r, x = jnp.stack(y), [None] * n
+    for i in reversed(range(n)):  # c^T x = y
+        x[i] = r[i] / c[i, i]
+        r = r - c[i] * x[i]  # c[i, j > i] is 0
+    return jnp.stack(x)
 
 
 def _factor_any(anc, qm):
-    if uses_lapack(anc):
+    which = dense_solver(anc)
+    if which == "lapack":
         return jax.lax.linalg.cholesky(qm, symmetrize_input=False)
+    if which == "columns":
+        return _dense_cholesky(qm)
     return _factor(anc, qm)
 
 
 def _solve_any(anc, factor, vec):
-    if uses_lapack(anc):
+    which = dense_solver(anc)
+    if which == "lapack":
         return jax.scipy.linalg.cho_solve((factor, True), vec)
+    if which == "columns":
+        return _dense_cho_solve(factor, vec)
     return _solve_factored(anc, factor, vec)
 
 
@@ -314,7 +356,7 @@ _solve.defvjp(_solve_fwd, _solve_bwd)
 def solve_structured(structure: tuple[tuple[int, ...], ...], qm: jax.Array, vec: jax.Array) -> jax.Array:
     """``qm^-1 vec`` for a symmetric positive-definite ``qm`` whose factor has the sparsity
     ``structure`` (each row's nonzero columns, nearest first); differentiable like ``solve``.
-    Large dense structures go to LAPACK's Cholesky (``uses_lapack``)."""
+    Large dense structures go to a dense Cholesky (``dense_solver``)."""
     return _solve(structure, qm, vec)
 
 

@@ -1,0 +1,124 @@
+"""The first minute of a training run, as a new user sees it: when the first progress line comes,
+how long the compile takes cold and from the persistent cache.
+
+    python experiments/first_minute.py                       # the Ant and the Humanoid (~8 min)
+    python experiments/first_minute.py --envs ant --updates 20
+
+For each env, ``python -m fastrl.train env=<env> algo=ppo`` is launched twice with the same
+fresh compilation cache folder (``FASTRL_COMPILE_CACHE``): the first launch compiles cold, the
+second finds the chunk in the cache. Each launch trains ``--updates`` learner updates and
+evaluates 4 episodes (the Humanoid's default 128 would take minutes, and come after the
+progress lines this measures). Recorded
+per launch, from its output lines as they arrive:
+
+    first line      seconds from launch to the first progress line
+    compile         the chunk's compile time as the run reports it (tracing included), and
+                    whether the cache held it
+    train steps/s   env steps over the seconds of the training chunks (metrics.csv: no compile,
+                    evaluation or checkpoint time)
+    wall            seconds from launch to exit
+
+Writes ``experiments/results/first_minute.{md,json}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+import os
+import pathlib
+import platform
+import re
+import subprocess
+import sys
+import tempfile
+import time
+
+RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+ROOT = RESULTS.parents[1]
+STEPS_PER_UPDATE = {"ant": 81_920, "humanoid": 10_240}  # the envs' PPO settings (checked below)
+
+
+def launch(env: str, updates: int, cache: str, run_dir: pathlib.Path) -> dict:
+    """One launch; its timings."""
+    cmd = [sys.executable, "-m", "fastrl.train", f"env={env}", "algo=ppo", f"run_dir={run_dir}",
+           f"train.total_env_steps={updates * STEPS_PER_UPDATE[env]}", "train.eval_envs=4"]  # fmt: skip
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=dict(os.environ, FASTRL_COMPILE_CACHE=cache),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    out: dict = {"command": " ".join(cmd[1:]), "first_line_s": None}
+    lines = []
+    for line in proc.stdout:
+        lines.append(line.rstrip())
+        if out["first_line_s"] is None and re.match(r"\[[#-]+\]", line):
+            out["first_line_s"] = time.perf_counter() - t0
+        if m := re.search(r"chunk compiled in ([\d.]+)s \(([\d.]+)s tracing, compilation cache (\w+)", line):
+            out["compile_s"], out["tracing_s"], out["cache"] = float(m[1]), float(m[2]), m[3]
+        if m := re.search(r"([\d,]+) updates x ([\d,]+) env steps", line):
+            assert int(m[2].replace(",", "")) == STEPS_PER_UPDATE[env], line  # the table above is stale
+    proc.wait()
+    out["wall_s"] = time.perf_counter() - t0
+    if proc.returncode:
+        raise RuntimeError(f"{out['command']} failed:\n" + "\n".join(lines[-20:]))
+    with (run_dir / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    steps = int(rows[-1]["env_steps"])
+    out["train_steps_per_s"] = steps / float(rows[-1]["wall_s"])
+    out["chunks"] = len(rows)
+    return out
+
+
+def markdown(results: dict, meta: dict) -> str:
+    out = [
+        "# The first minute: first progress line and compile, cold and from the cache",
+        "",
+        f"{meta['date']}, {meta['machine']}; fastrl {meta['fastrl']}. Command: `{meta['command']}`.",
+        "",
+        "Each env launched twice with one fresh compilation cache: cold, then from the cache. "
+        "Compile: the chunk's, as the run reports it (tracing included). Train steps/s: env steps "
+        "over the training chunks' seconds.",
+        "",
+        "| env | launch | first progress line (s) | chunk compile (s) | of it tracing (s) | cache | train steps/s | chunks | wall (s) |",  # noqa: E501
+        "| --- | --- | ---: | ---: | ---: | --- | ---: | ---: | ---: |",
+    ]
+    for env, runs in results.items():
+        for which, r in runs.items():
+            out.append(
+                f"| {env} | {which} | {r['first_line_s']:.1f} | {r['compile_s']:.1f} | "
+                f"{r['tracing_s']:.1f} | {r['cache']} | {r['train_steps_per_s']:,.0f} | {r['chunks']} | "
+                f"{r['wall_s']:.0f} |"
+            )
+    return "\n".join(out) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", nargs="*", default=["ant", "humanoid"], choices=sorted(STEPS_PER_UPDATE))
+    parser.add_argument("--updates", type=int, default=3, help="learner updates per launch")
+    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    args = parser.parse_args()
+    results = {}
+    for env in args.envs:
+        with tempfile.TemporaryDirectory() as tmp:
+            cache = str(pathlib.Path(tmp) / "cache")
+            results[env] = {
+                which: launch(env, args.updates, cache, pathlib.Path(tmp) / which)
+                for which in ("cold", "cached")
+            }
+        print(env, json.dumps(results[env], indent=1), flush=True)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    meta = {
+        "date": datetime.date.today().isoformat(),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "fastrl": commit.stdout.strip(),
+        "command": "python experiments/first_minute.py " + " ".join(sys.argv[1:]),
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "first_minute.json").write_text(json.dumps({"meta": meta, "results": results}, indent=1))
+    (args.out / "first_minute.md").write_text(markdown(results, meta))
+
+
+if __name__ == "__main__":
+    main()
