@@ -3,6 +3,7 @@ how long the compile takes cold and from the persistent cache.
 
     python experiments/first_minute.py                       # the Ant and the Humanoid (~8 min)
     python experiments/first_minute.py --envs ant --updates 20
+    python experiments/first_minute.py --quick --out DIR     # inverted_pendulum, debug=quick, for CI
 
 For each env, ``python -m fastrl.train env=<env> algo=ppo`` is launched twice with the same
 fresh compilation cache folder (``FASTRL_COMPILE_CACHE``): the first launch compiles cold, the
@@ -38,13 +39,15 @@ import time
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 ROOT = RESULTS.parents[1]
-STEPS_PER_UPDATE = {"ant": 81_920, "humanoid": 10_240}  # the envs' PPO settings (checked below)
+# the envs' PPO settings (checked below); inverted_pendulum's under debug=quick (--quick)
+STEPS_PER_UPDATE = {"ant": 81_920, "humanoid": 10_240, "inverted_pendulum": 128}
 
 
-def launch(env: str, updates: int, cache: str, run_dir: pathlib.Path) -> dict:
+def launch(env: str, updates: int, cache: str, run_dir: pathlib.Path, extra: list[str]) -> dict:
     """One launch; its timings."""
     cmd = [sys.executable, "-m", "fastrl.train", f"env={env}", "algo=ppo", f"run_dir={run_dir}",
-           f"train.total_env_steps={updates * STEPS_PER_UPDATE[env]}", "train.eval_envs=4"]  # fmt: skip
+           f"train.total_env_steps={updates * STEPS_PER_UPDATE[env]}", "train.eval_envs=4",
+           *extra]  # fmt: skip
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=ROOT, env=dict(os.environ, FASTRL_COMPILE_CACHE=cache),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
@@ -97,14 +100,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="*", default=["ant", "humanoid"], choices=sorted(STEPS_PER_UPDATE))
     parser.add_argument("--updates", type=int, default=3, help="learner updates per launch")
+    parser.add_argument("--quick", action="store_true", help="inverted_pendulum with debug=quick (CI)")
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     args = parser.parse_args()
+    extra = ["debug=quick"] if args.quick else []
+    if args.quick:
+        args.envs, args.updates = ["inverted_pendulum"], 4
     results = {}
     for env in args.envs:
         with tempfile.TemporaryDirectory() as tmp:
             cache = str(pathlib.Path(tmp) / "cache")
             results[env] = {
-                which: launch(env, args.updates, cache, pathlib.Path(tmp) / which)
+                which: launch(env, args.updates, cache, pathlib.Path(tmp) / which, extra)
                 for which in ("cold", "cached")
             }
         print(env, json.dumps(results[env], indent=1), flush=True)
@@ -116,8 +123,9 @@ def main() -> None:
         "command": "python experiments/first_minute.py " + " ".join(sys.argv[1:]),
     }
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "first_minute.json").write_text(json.dumps({"meta": meta, "results": results}, indent=1))
-    (args.out / "first_minute.md").write_text(markdown(results, meta))
+    stem = "first_minute_quick" if args.quick else "first_minute"
+    (args.out / f"{stem}.json").write_text(json.dumps({"meta": meta, "results": results}, indent=1))
+    (args.out / f"{stem}.md").write_text(markdown(results, meta))
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
     python experiments/float32_floor.py            # every loading scene with a free root (~2 min)
     python experiments/float32_floor.py --scenes g1 apollo
+    python experiments/float32_floor.py --quick --out DIR    # one scene, 0.05 s, for CI
 
 ``robot_coverage.py`` asks fastrl's float32 root to stay within 1 cm of MuJoCo C's over 2 s from
 the first keyframe with its ``ctrl`` held. This script measures, with MuJoCo C alone (float64
@@ -149,8 +150,11 @@ def main() -> None:
     parser.add_argument("--scenes", nargs="*", help="only scenes whose name contains one of these")
     parser.add_argument("--seconds", type=float, default=2.0)
     parser.add_argument("--starts", type=int, default=40, help="start times of the one-off perturbations")
+    parser.add_argument("--quick", action="store_true", help="one scene, 0.05 s, 2 start times (CI)")
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     args = parser.parse_args()
+    if args.quick:
+        args.scenes, args.seconds, args.starts = ["go1/scene_mjx_feetonly_flat"], 0.05, 2
     from fastrl import physics  # which scenes fastrl loads (the ones the 1 cm bar applies to)
 
     rows = {}
@@ -174,8 +178,9 @@ def main() -> None:
         "command": "python experiments/float32_floor.py " + " ".join(sys.argv[1:]),
     }
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "float32_floor.json").write_text(json.dumps({"meta": meta, "scenes": rows}, indent=1))
-    (args.out / "float32_floor.md").write_text(markdown(rows, meta))
+    stem = "float32_floor_quick" if args.quick else "float32_floor"
+    (args.out / f"{stem}.json").write_text(json.dumps({"meta": meta, "scenes": rows}, indent=1))
+    (args.out / f"{stem}.md").write_text(markdown(rows, meta))
 
 
 if __name__ == "__main__":

@@ -213,3 +213,17 @@ def test_solver_iterations_quick(tmp_path):
         assert converged == sorted(converged)  # a CDF of iteration counts
         assert 1 <= r["rule"] <= 8 and r["shipped"] >= 1
         assert r["fastrl_off_1e-4"]  # fastrl was checked at some count
+
+
+def test_float32_floor_quick(tmp_path):
+    result = _run_quick("float32_floor.py", tmp_path, "float32_floor_quick.json")
+    (row,) = result["scenes"].values()
+    assert row["steps"] == 12 and 0 <= row["once_mm"] < 1 and row["per_step_mm"] >= 0  # 0.05 s of 4 ms steps
+    assert (tmp_path / "float32_floor_quick.md").read_text().startswith("# The float32 floor")
+
+
+def test_first_minute_quick(tmp_path):
+    result = _run_quick("first_minute.py", tmp_path, "first_minute_quick.json")
+    cold, cached = result["results"]["inverted_pendulum"].values()
+    assert cold["cache"] == "miss" and cached["cache"] == "hit"
+    assert 0 < cold["first_line_s"] < cold["wall_s"] and cached["train_steps_per_s"] > 0
