@@ -15,8 +15,9 @@ second Ctrl-C stops at once, without saving).
 agents, learner, layout), its start (``_start``: a fresh or restored state), the compiled chunk
 (``_compile_chunk``), divergence (``_diverged``), evaluation with the collapse watch and the
 ``stop_at_return`` record (``_Evaluation``), viewer pages (``_ViewerPages``), outputs
-(``_Outputs``, ``_log_chunk``), checkpoints and the decision to stop (``_stop_reason``). A single
-run is a batch of one (``_Agents``): the loop never asks which it is.
+(``_Outputs``, ``_report_chunk``, ``_write_rows``), checkpoints and the decision to stop
+(``_stop_reason``). A single run is a batch of one (``_Agents``): the loop never asks which it
+is.
 """
 
 from __future__ import annotations
@@ -129,7 +130,7 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
                 state, dt = new_state, time.perf_counter() - t
                 sizer.observe(n, dt)
                 progress.advance(dt, n)
-                row = _log_chunk(setup, progress, rows, outs, state, dt, n, program.compile_s)
+                _report_chunk(setup, progress, rows, state, dt, n, program.compile_s)
                 if evaluation.due(progress, n):
                     evaluation(state, rows, progress)
                 pages(state, progress)
@@ -214,6 +215,12 @@ class _Setup:
     def total_steps(self) -> int:
         """Env steps of the whole run (per agent)."""
         return self.total_updates * self.steps_per_update
+
+    @property
+    def fixed_chunks(self) -> int | None:
+        """The run's chunk count when ``train.updates_per_chunk`` fixes it (None: sized by time)."""
+        k = self.cfg.train.updates_per_chunk
+        return None if k is None else self.total_updates // k
 
 
 def _setup(cfg: RunConfig) -> _Setup:
@@ -404,8 +411,8 @@ def _announce_start(setup: _Setup, program: _Program, run_dir: Path) -> None:
     cfg, n, k = setup.cfg, setup.agents.n, setup.cfg.train.updates_per_chunk
     batch_note = f" x {n} agents in one program" if setup.agents.batched else ""
     size = f"updates x {setup.steps_per_update:,d} env steps{batch_note}"
-    if k is not None:
-        size = f"{setup.total_updates // k:,d} chunks x {k} {size}"
+    if setup.fixed_chunks is not None:
+        size = f"{setup.fixed_chunks:,d} chunks x {k} {size}"
     else:
         size = f"{setup.total_updates:,d} {size} in chunks of ~{cfg.train.chunk_seconds:g}s"
     print(
@@ -539,10 +546,10 @@ def _open_outputs(setup: _Setup, run_dir: Path, chunk: int, env_steps: int) -> l
     return outs
 
 
-def _log_chunk(setup: _Setup, progress: _Progress, rows: list[dict], outs: list[_Outputs], state,
-               dt: float, n: int, compile_s: float) -> dict:  # fmt: skip
+def _report_chunk(setup: _Setup, progress: _Progress, rows: list[dict], state, dt: float, n: int,
+                  compile_s: float) -> None:  # fmt: skip
     """Completes each agent's row of the chunk just run (``n`` updates in ``dt`` seconds) and
-    prints the progress line at once, before any evaluation; returns the run's row."""
+    prints the progress line at once, before any evaluation."""
     for i, r in enumerate(rows):
         r.update(chunk=progress.chunk, env_steps=setup.agents.env_steps(state, i), wall_s=progress.wall,
                  time_unix=time.time())  # fmt: skip
@@ -554,7 +561,6 @@ def _log_chunk(setup: _Setup, progress: _Progress, rows: list[dict], outs: list[
     progress.train_return = row.get("train/episode_return", progress.train_return)
     if setup.cfg.logger.progress and jax.process_index() == 0:
         print(_progress(row, setup.total_steps, progress.wall, progress.train_return), flush=True)
-    return row
 
 
 def _write_rows(setup: _Setup, rows: list[dict], outs: list[_Outputs]) -> dict:
@@ -600,12 +606,9 @@ def _announce_end(setup: _Setup, progress: _Progress, ending: str, interrupted: 
               f"chunk {progress.chunk} ({progress.wall:.0f}s of training); stopping", flush=True)  # fmt: skip
         return
     why = "Ctrl-C" if interrupted else f"train.stop_after_chunks={train.stop_after_chunks}"
-    k = setup.cfg.train.updates_per_chunk
-    of = (
-        f"of {setup.total_updates // k}"
-        if k is not None
-        else f"({progress.updates:,d} of {setup.total_updates:,d} updates)"
-    )
+    of = f"({progress.updates:,d} of {setup.total_updates:,d} updates)"
+    if setup.fixed_chunks is not None:
+        of = f"of {setup.fixed_chunks}"
     print(f"[fastrl] stopped by {why} after chunk {progress.chunk} {of}, checkpoint saved; "
           f"continue with: python -m fastrl.train resume={run_dir}", flush=True)  # fmt: skip
 
