@@ -7,10 +7,13 @@ same number of candidate contacts. A scene with no pairs traces no collision cod
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fastrl.physics import collision_convex as convex
 from fastrl.physics import collision_primitive as prim
 from fastrl.physics.math import cross, dot
 from fastrl.physics.types import Data, GeomType, Model
@@ -31,22 +34,77 @@ PRIMITIVES = {
     (GeomType.BOX, GeomType.BOX): (prim.box_box, 16),
 }
 
+# Pairs with a mesh or height field: their functions also take the shape's data (``_shape_args``).
+# A height-field pair's candidate count is two per cell of its window (None here).
+SHAPED = {
+    (GeomType.PLANE, GeomType.MESH): (convex.plane_mesh, 4),
+    (GeomType.HFIELD, GeomType.SPHERE): (convex.hfield_sphere, None),
+}
+SUPPORTED = {**PRIMITIVES, **SHAPED}
+
 
 def pair_groups(m: Model) -> list[tuple[tuple[int, int], np.ndarray]]:
     """Pair indices grouped by geom-type pair, in a fixed order."""
     t1, t2 = m.geom_type[m.pair_geom1], m.geom_type[m.pair_geom2]
     groups = []
-    for key in PRIMITIVES:
+    for key in SUPPORTED:
         idx = np.flatnonzero((t1 == key[0]) & (t2 == key[1]))
         if idx.size:
             groups.append((key, idx))
     return groups
 
 
+def _window(m: Model, idx: np.ndarray) -> tuple[int, int]:
+    """The cell window (rows, columns) shared by a group of height-field pairs: the largest."""
+    return tuple(int(w) for w in m.pair_window[idx].max(axis=0))
+
+
+def candidates_per_pair(m: Model, key: tuple[int, int], idx: np.ndarray) -> int:
+    """How many candidate contacts each pair of a type-pair group emits (static)."""
+    count = SUPPORTED[key][1]
+    if count is None:  # a height field: two prisms per cell of the window
+        rows, cols = _window(m, idx)
+        count = 2 * rows * cols
+    return count
+
+
 def contact_layout(m: Model) -> np.ndarray:
     """(ncon,) the pair index of every candidate contact, in the order ``collision`` emits them."""
-    parts = [np.repeat(idx, PRIMITIVES[key][1]) for key, idx in pair_groups(m)]
+    parts = [np.repeat(idx, candidates_per_pair(m, key, idx)) for key, idx in pair_groups(m)]
     return np.concatenate(parts) if parts else np.zeros(0, np.int64)
+
+
+def _mesh_args(m: Model, g: np.ndarray) -> tuple[jax.Array, ...]:
+    """Each geom's mesh, padded to the group's largest (with copies of vertex 0, which change no
+    support point, and -1 ids): vertices (n, V, 3), each vertex's polygons (n, V, M), each
+    polygon's vertices (n, P, K) and normals (n, P, 3)."""
+    mesh = m.geom_meshid[g]
+
+    def rows(adr, num):
+        k = np.arange(num.max())
+        real = k[None, :] < num[:, None]
+        return adr[:, None] + np.where(real, k[None, :], 0), real
+
+    vrows, vreal = rows(m.mesh_vertadr[mesh], m.mesh_vertnum[mesh])
+    npoly = np.diff(np.r_[m.mesh_polyadr, m.mesh_polyvert.shape[0]])[mesh]
+    prows, preal = rows(m.mesh_polyadr[mesh], npoly)
+    polymap = np.where(vreal[..., None], m.mesh_polymap[vrows], -1)
+    polyvert = np.where(preal[..., None], m.mesh_polyvert[prows], -1)
+    normals = jnp.where(jnp.asarray(preal)[..., None], m.mesh_polynormal[prows], 0.0)
+    return m.mesh_vert[vrows], jnp.asarray(polymap), jnp.asarray(polyvert), normals
+
+
+def _shape_args(m: Model, key: tuple[int, int], idx: np.ndarray) -> tuple[tuple, tuple, dict]:
+    """Extra arguments of a ``SHAPED`` function, their vmap axes, and static keywords."""
+    g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
+    margin = m.pair_margin[idx]
+    if key == (GeomType.PLANE, GeomType.MESH):
+        return (*_mesh_args(m, g2), margin), (0,) * 5, {}
+    hf = m.geom_hfieldid[g1]
+    ints = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
+    args = (m.hfield_data, ints(m.hfield_adr[hf]), ints(m.hfield_nrow[hf]), ints(m.hfield_ncol[hf]),
+            m.hfield_size[hf], m.geom_rbound[g2], margin)  # fmt: skip
+    return args, (None, 0, 0, 0, 0, 0, 0), {"window": _window(m, idx)}
 
 
 def make_frame(normal: jax.Array, tangent: jax.Array) -> jax.Array:
@@ -71,12 +129,13 @@ def collision(m: Model, d: Data) -> Data:
     """Candidate contacts of every pair: ``contact_dist``, ``contact_pos``, ``contact_frame``."""
     dists, poss, normals, tangents = [], [], [], []
     for key, idx in pair_groups(m):
-        fn = PRIMITIVES[key][0]
+        fn = SUPPORTED[key][0]
         g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
-        dist, pos, normal, tangent = jax.vmap(fn)(
-            d.geom_xpos[g1], d.geom_xmat[g1], m.geom_size[g1],
-            d.geom_xpos[g2], d.geom_xmat[g2], m.geom_size[g2],
-        )  # fmt: skip
+        poses = (d.geom_xpos[g1], d.geom_xmat[g1], m.geom_size[g1],
+                 d.geom_xpos[g2], d.geom_xmat[g2], m.geom_size[g2])  # fmt: skip
+        extra, axes, static = _shape_args(m, key, idx) if key in SHAPED else ((), (), {})
+        fn = functools.partial(fn, **static) if static else fn
+        dist, pos, normal, tangent = jax.vmap(fn, (0,) * 6 + axes)(*poses, *extra)
         dists.append(dist.reshape(-1))
         poss.append(pos.reshape(-1, 3))
         normals.append(normal.reshape(-1, 3))

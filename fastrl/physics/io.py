@@ -8,10 +8,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics.collision_driver import PRIMITIVES
+from fastrl.physics.collision_driver import SUPPORTED
 from fastrl.physics.constraint import contact_slots, default_nconmax
 from fastrl.physics.constraint import sizes as constraint_sizes
-from fastrl.physics.types import Data, Integrator, JointType, Model
+from fastrl.physics.types import Data, GeomType, Integrator, JointType, Model
 
 _DSBL = mujoco.mjtDisableBit
 _INTEGRATORS = {"euler": Integrator.EULER, "rk4": Integrator.RK4, "implicitfast": Integrator.IMPLICITFAST}
@@ -105,7 +105,7 @@ def _check_supported(m: mujoco.MjModel) -> None:
     if contacts_enabled(m):
         for g1, g2 in candidate_geom_pairs(m):
             key = (int(m.geom_type[g1]), int(m.geom_type[g2]))
-            if key not in PRIMITIVES:
+            if key not in SUPPORTED:
                 n1 = mujoco.mj_id2name(m, obj.mjOBJ_GEOM, g1) or g1
                 n2 = mujoco.mj_id2name(m, obj.mjOBJ_GEOM, g2) or g2
                 t1, t2 = (mujoco.mjtGeom(t).name[7:].lower() for t in key)
@@ -422,6 +422,90 @@ def _tendon_fields(m: mujoco.MjModel) -> dict:
     )  # fmt: skip
 
 
+def _geometry_fields(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict:
+    """``Model``'s mesh and height-field fields, for the geoms of the colliding pairs only.
+
+    Meshes: the vertices and the convex hull's polygons MuJoCo's compiler built (``mesh_poly*``):
+    each vertex's polygons, each polygon's vertices (-1 padded) and normal. Height fields: elevation
+    data (0..1, scaled by ``hfield_size[2]``) and the cell window examined around each geom.
+    """
+    geoms = sorted({g for pair in pairs for g in pair})
+    mesh_geoms = [g for g in geoms if m.geom_type[g] == GeomType.MESH]
+    meshes = sorted({int(m.geom_dataid[g]) for g in mesh_geoms})
+    geom_meshid = np.full(m.ngeom, -1, np.int32)
+    verts, maps, polys, normals, vadr, vnum, padr = [], [], [], [], [], [], []
+    for k, mid in enumerate(meshes):
+        v0, nv, p0, npoly = m.mesh_vertadr[mid], m.mesh_vertnum[mid], m.mesh_polyadr[mid], m.mesh_polynum[mid]
+        vadr.append(sum(vnum))
+        vnum.append(nv)
+        padr.append(len(polys))
+        verts.append(m.mesh_vert[v0 : v0 + nv])
+        for v in range(nv):  # the polygons each vertex lies on (mesh-local polygon ids)
+            a, n = m.mesh_polymapadr[v0 + v], m.mesh_polymapnum[v0 + v]
+            maps.append(m.mesh_polymap[a : a + n])
+        for q in range(p0, p0 + npoly):  # each polygon's vertices (mesh-local vertex ids)
+            a, n = m.mesh_polyvertadr[q], m.mesh_polyvertnum[q]
+            polys.append(m.mesh_polyvert[a : a + n])
+        normals.append(m.mesh_polynormal[p0 : p0 + npoly].reshape(-1, 3))
+        geom_meshid[[g for g in mesh_geoms if m.geom_dataid[g] == mid]] = k
+
+    def padded(rows: list) -> np.ndarray:
+        out = np.full((len(rows), max((len(r) for r in rows), default=0)), -1, np.int32)
+        for i, r in enumerate(rows):
+            out[i, : len(r)] = r
+        return out
+
+    hfields = sorted({int(m.geom_dataid[g]) for g in geoms if m.geom_type[g] == GeomType.HFIELD})
+    geom_hfieldid = np.full(m.ngeom, -1, np.int32)
+    for k, hid in enumerate(hfields):
+        geom_hfieldid[(m.geom_type == GeomType.HFIELD) & (m.geom_dataid == hid)] = k
+    window = np.zeros((len(pairs), 2), np.int32)
+    for k, (g1, g2) in enumerate(pairs):
+        if m.geom_type[g1] == GeomType.HFIELD:
+            hid = m.geom_dataid[g1]
+            reach = 2 * (m.geom_rbound[g2] + m.geom_margin[g1] + m.geom_margin[g2])
+            step = np.array(
+                [
+                    2 * m.hfield_size[hid, 1] / (m.hfield_nrow[hid] - 1),  # rows: y
+                    2 * m.hfield_size[hid, 0] / (m.hfield_ncol[hid] - 1),
+                ]
+            )  # cols: x
+            cells = np.floor(reach / step * (1 + 1e-9)).astype(np.int32) + 2
+            window[k] = np.minimum(cells, [m.hfield_nrow[hid] - 1, m.hfield_ncol[hid] - 1])
+    f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
+    hf_data = [
+        m.hfield_data[m.hfield_adr[h] : m.hfield_adr[h] + m.hfield_nrow[h] * m.hfield_ncol[h]]
+        for h in hfields
+    ]
+    hf_num = [m.hfield_nrow[h] * m.hfield_ncol[h] for h in hfields]
+    return dict(
+        geom_meshid=geom_meshid, mesh_vertadr=np.asarray(vadr, np.int32),
+        mesh_vertnum=np.asarray(vnum, np.int32), mesh_polyadr=np.asarray(padr, np.int32),
+        mesh_polymap=padded(maps), mesh_polyvert=padded(polys),
+        mesh_polynormal=f(np.concatenate(normals) if normals else np.zeros((0, 3))),
+        geom_hfieldid=geom_hfieldid,
+        hfield_nrow=np.asarray([m.hfield_nrow[h] for h in hfields], np.int32),
+        hfield_ncol=np.asarray([m.hfield_ncol[h] for h in hfields], np.int32),
+        hfield_adr=np.asarray(np.cumsum([0] + hf_num)[:-1], np.int32), pair_window=window,
+        mesh_vert=f(np.concatenate(verts) if verts else np.zeros((0, 3))),
+        hfield_size=f(np.asarray([m.hfield_size[h] for h in hfields]).reshape(-1, 4)),
+        hfield_data=f(np.concatenate(hf_data) if hf_data else np.zeros(0)),
+        geom_rbound=f(m.geom_rbound),
+    )  # fmt: skip
+
+
+def _candidate_count(m: mujoco.MjModel, pairs: list[tuple[int, int]], window: np.ndarray) -> int:
+    """Candidate contacts of all pairs, as ``collision_driver.contact_layout`` lays them out."""
+    groups: dict[tuple[int, int], list[int]] = {}
+    for k, (a, b) in enumerate(pairs):
+        groups.setdefault((int(m.geom_type[a]), int(m.geom_type[b])), []).append(k)
+    total = 0
+    for key, ks in groups.items():
+        count = SUPPORTED[key][1]
+        total += len(ks) * (count if count is not None else 2 * int(np.prod(window[ks].max(axis=0))))
+    return total
+
+
 def model_from_mujoco(
     m: mujoco.MjModel,
     integrator: str | None = None,
@@ -440,8 +524,9 @@ def model_from_mujoco(
     mixed = _mix_pair_params(m, pairs)
     g1 = np.array([p[0] for p in pairs], np.int32)
     g2 = np.array([p[1] for p in pairs], np.int32)
+    geometry = _geometry_fields(m, pairs)
     if nconmax is None:
-        ncand = sum(PRIMITIVES[(int(m.geom_type[a]), int(m.geom_type[b]))][1] for a, b in pairs)
+        ncand = _candidate_count(m, pairs, geometry["pair_window"])
         nconmax = m.nconmax if m.nconmax > 0 else default_nconmax(ncand)
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
     eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
@@ -450,7 +535,7 @@ def model_from_mujoco(
     gravity = m.opt.gravity * (0.0 if m.opt.disableflags & _DSBL.mjDSBL_GRAVITY else 1.0)
     return Model(
         nq=m.nq, nv=m.nv, nu=m.nu, nbody=m.nbody, njnt=m.njnt, ngeom=m.ngeom, nsite=m.nsite,
-        **_tendon_fields(m),
+        **_tendon_fields(m), **geometry,
         body_parentid=i32(m.body_parentid), body_rootid=i32(m.body_rootid),
         body_jntnum=i32(m.body_jntnum), body_jntadr=i32(m.body_jntadr),
         body_dofnum=i32(m.body_dofnum), body_dofadr=i32(m.body_dofadr),

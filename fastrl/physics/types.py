@@ -89,6 +89,17 @@ class Model:
                                                compiled (tendon.py: inertia and bias traced)
       friction_tendons                         (nfric_ten,) tendons with a friction-loss row
       pair_geom1, pair_geom2, pair_condim      (npair,) geom pairs that can touch (type1 <= type2)
+      pair_window                              (npair,2) height-field pairs: the rows and columns
+                                               of cells examined around the geom (else 0)
+      geom_meshid                              (ngeom,) the geom's convex hull in mesh_* (-1: none)
+      mesh_vertadr, mesh_vertnum               (nmesh,) each mesh's vertices in mesh_vert
+      mesh_polyadr                             (nmesh,) each mesh's hull polygons in mesh_poly*
+      mesh_polymap                             (nmeshvert, maxmap) the hull polygons each vertex
+                                               lies on (mesh-local ids, -1 padded)
+      mesh_polyvert                            (npoly, maxpolyvert) each polygon's vertices
+                                               (mesh-local ids, -1 padded)
+      geom_hfieldid                            (ngeom,) the geom's height field (-1: none)
+      hfield_nrow, hfield_ncol, hfield_adr     (nhfield,) grid sizes; offsets in hfield_data
       eq_type, eq_obj1id, eq_obj2id, eq_objtype (neq,) equality constraints: mjtEq kind, the two
                                                bodies/joints/sites (obj2 -1: none), mjtObj of the
                                                objects (body or site for connect/weld)
@@ -117,6 +128,11 @@ class Model:
       dof_armature (nv,), dof_damping (nv,)
       dof_frictionloss (nv,), dof_solref (nv,2), dof_solimp (nv,5)   friction loss and its softness
       geom_pos (ngeom,3), geom_quat (ngeom,4), geom_size (ngeom,3), geom_friction (ngeom,3)
+      geom_rbound (ngeom,)   bounding-sphere radius (MuJoCo's)
+      mesh_vert (nmeshvert,3)   vertices in each mesh's frame (only meshes that collide)
+      mesh_polynormal (npoly,3)   outward unit normals of the hull polygons
+      hfield_size (nhfield,4)   x and y half-extents, top and base heights; hfield_data (n,) the
+                                elevations in [0, 1], row-major (only height fields that collide)
       site_pos (nsite,3), site_quat (nsite,4)
       actuator_gear (nu,6), actuator_ctrlrange (nu,2), actuator_forcerange (nu,2)
       actuator_gainprm (nu,10), actuator_biasprm (nu,10)
@@ -188,6 +204,17 @@ class Model:
     pair_geom1: np.ndarray
     pair_geom2: np.ndarray
     pair_condim: np.ndarray
+    pair_window: np.ndarray
+    geom_meshid: np.ndarray
+    mesh_vertadr: np.ndarray
+    mesh_vertnum: np.ndarray
+    mesh_polyadr: np.ndarray
+    mesh_polymap: np.ndarray
+    mesh_polyvert: np.ndarray
+    geom_hfieldid: np.ndarray
+    hfield_nrow: np.ndarray
+    hfield_ncol: np.ndarray
+    hfield_adr: np.ndarray
     eq_type: np.ndarray
     eq_obj1id: np.ndarray
     eq_obj2id: np.ndarray
@@ -235,6 +262,11 @@ class Model:
     geom_quat: jax.Array
     geom_size: jax.Array
     geom_friction: jax.Array
+    geom_rbound: jax.Array
+    mesh_vert: jax.Array
+    mesh_polynormal: jax.Array
+    hfield_size: jax.Array
+    hfield_data: jax.Array
     site_pos: jax.Array
     site_quat: jax.Array
     actuator_gear: jax.Array

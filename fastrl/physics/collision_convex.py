@@ -1,0 +1,186 @@
+"""Collisions with convex meshes and height fields, as MuJoCo computes them.
+
+Same contract as ``collision_primitive``: each function handles one geom-type pair, returns a
+fixed number of candidate contacts ``(dist, pos, normal, tangent)`` and is vmapped by the driver;
+a candidate MuJoCo would not report gets ``dist = _FAR`` (beyond any margin, so masked inactive).
+
+- **Plane-mesh**: the vertex deepest below the plane, then, from the hull polygon through that
+  vertex whose normal points most squarely into the plane, its vertices within the margin and
+  on the plane's side of the mesh's centre, at most four, spread out: the deepest, the one
+  farthest from it, and the farthest on either side of the line between them. MuJoCo 4.0's rule
+  is not in the source we can read (the last public source takes up to two hull-graph
+  neighbours); this one was fitted to MuJoCo 4.0's contacts and matches them on hulls whose
+  faces are triangles and quadrilaterals (``tests/physics/test_mesh_hfield.py``). On a face with
+  more corners MuJoCo keeps fewer (a tilted 12-sided disc: two where this keeps four); the rule
+  there is not known.
+- **Height field-sphere** follows ``mjc_ConvexHField``: the field is a grid of triangular prisms
+  (two per cell, from the cell's top surface down to the base), and each prism the sphere
+  comes within the margin of gives one contact. MuJoCo's GJK shrinks the sphere to its centre and
+  inflates the result, so a contact is the centre's closest point on the prism (or, with the
+  centre inside it, the nearest face), exactly what is computed here in closed form; the
+  distance is the plain surface distance, and the cells examined are those under the sphere's
+  box grown by the margin (as MuJoCo 4.0 reports them). Only a fixed window of
+  cells around the sphere is examined (``Model.pair_window``), so the cost does not depend on the
+  terrain's size. Candidates: two per cell of the window.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from fastrl.physics.collision_primitive import _FAR, _normalize
+from fastrl.physics.math import cross, dot
+
+
+def _spread(points, ok, normal):
+    """Up to four of ``points`` (where ``ok``), spread over their polygon: the first (the deepest),
+    the one farthest from it, and the farthest on either side of the line between those two.
+    Returns four indices and whether each is used."""
+    flat = points - (points @ normal)[:, None] * normal
+    a = 0
+    far = jnp.where(ok, jnp.sum((flat - flat[a]) ** 2, axis=-1), -1.0)
+    b = jnp.argmax(far)
+    side = jnp.where(ok, cross(flat[b] - flat[a], flat - flat[a]) @ normal, 0.0)
+    c, d = jnp.argmax(side), jnp.argmin(side)
+    tiny = 1e-12 * jnp.maximum(jnp.max(far), 1e-30)
+    used = jnp.stack([ok[a], far[b] > 0, side[c] > tiny, side[d] < -tiny])
+    return jnp.stack([a, b, c, d]), used
+
+
+def plane_mesh(p_pos, p_mat, p_size, m_pos, m_mat, m_size, verts, polymap, polyvert, polynormal, margin):
+    """Four contacts: the deepest vertex, then the corners of the hull polygon it lies on that
+    faces the plane most squarely (see module doc)."""
+    del p_size, m_size
+    normal = p_mat[:, 2]
+    best = jnp.argmax(verts @ (m_mat.T @ -normal))
+    polys = polymap[best]
+    facing = jnp.where(polys >= 0, (polynormal[jnp.maximum(polys, 0)] @ m_mat.T) @ normal, jnp.inf)
+    face = polyvert[polys[jnp.argmin(facing)]]
+    # The deepest vertex first, then the face's others (it lies on the face).
+    order = jnp.argsort(jnp.where(face == best, -1, jnp.where(face >= 0, jnp.arange(face.size), face.size)))
+    face = face[order]
+    points = m_pos + verts[jnp.maximum(face, 0)] @ m_mat.T
+    dist = (points - p_pos) @ normal
+    below = (points - m_pos) @ normal < 0  # on the plane's side of the mesh's centre
+    ok = (face >= 0) & (dist <= margin) & below
+    ok = ok.at[0].set(True)
+    pick, used = _spread(points, ok, normal)
+    dist = jnp.where(used, dist[pick], _FAR)
+    pos = points[pick] - 0.5 * dist[:, None] * normal
+    return dist, pos, jnp.tile(normal, (4, 1)), jnp.zeros((4, 3), normal.dtype)
+
+
+def _closest_on_triangle(p, a, b, c):
+    """The point of triangle abc nearest to p (the plane's projection if inside, else an edge's)."""
+    n = cross(b - a, c - a)
+    n = n / jnp.maximum(jnp.linalg.norm(n), 1e-30)
+    q = p - dot(p - a, n) * n
+    inside = (
+        (dot(cross(b - a, q - a), n) >= 0)
+        & (dot(cross(c - b, q - b), n) >= 0)
+        & (dot(cross(a - c, q - c), n) >= 0)
+    )
+    edges = []
+    for u, v in ((a, b), (b, c), (c, a)):
+        uv = v - u
+        t = jnp.clip(dot(q - u, uv) / jnp.maximum(dot(uv, uv), 1e-30), 0.0, 1.0)
+        edges.append(u + t * uv)
+    edges = jnp.stack(edges)
+    nearest = edges[jnp.argmin(jnp.sum((edges - p) ** 2, axis=-1))]
+    return jnp.where(inside, q, nearest)
+
+
+# The prism's 8 surface triangles (vertices 0-2 bottom, 3-5 top) and its 5 face planes.
+_PRISM_TRIANGLES = ((3, 4, 5), (0, 1, 2), (0, 1, 4), (0, 4, 3), (1, 2, 5), (1, 5, 4), (2, 0, 3), (2, 3, 5))
+
+
+def _prism_faces(prism):
+    """Outward unit normals (5, 3) and a point of each face: top, bottom, three sides."""
+    top = cross(prism[4] - prism[3], prism[5] - prism[3])
+    top = top * jnp.sign(top[2])
+    normals, points = [top, jnp.array([0.0, 0.0, -1.0], prism.dtype)], [prism[3], prism[0]]
+    centre = jnp.mean(prism[:3], axis=0)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        side = cross(prism[j] - prism[i], jnp.array([0.0, 0.0, 1.0], prism.dtype))
+        normals.append(side * jnp.sign(dot(side, prism[i] - centre)))
+        points.append(prism[i])
+    normals = jnp.stack(normals)
+    return normals / jnp.linalg.norm(normals, axis=-1, keepdims=True), jnp.stack(points)
+
+
+def _sphere_prism(centre, radius, prism):
+    """Contact of a sphere with a convex prism, as MuJoCo's GJK/EPA on the sphere's centre gives it:
+    ``(dist, pos, normal)`` with the normal from the prism to the sphere."""
+    tri = jnp.asarray(_PRISM_TRIANGLES)
+    closest = jax.vmap(_closest_on_triangle, (None, 0, 0, 0))(
+        centre, prism[tri[:, 0]], prism[tri[:, 1]], prism[tri[:, 2]]
+    )
+    q = closest[jnp.argmin(jnp.sum((closest - centre) ** 2, axis=-1))]
+    normals, points = _prism_faces(prism)
+    height = jnp.sum((centre - points) * normals, axis=-1)  # > 0 outside that face
+    inside = jnp.all(height <= 0)
+    # Outside: along the centre's closest point. Inside: out through the nearest face.
+    n_out, gap = _normalize(centre - q)
+    face = jnp.argmax(height)
+    n = jnp.where(inside, normals[face], n_out)
+    x1 = jnp.where(inside, centre - height[face] * n, q)  # on the prism
+    dist = jnp.where(inside, height[face], gap) - radius
+    x2 = centre - radius * n  # on the sphere
+    return dist, 0.5 * (x1 + x2), n
+
+
+def _window_prisms(h_size, heights, adr, nrow, ncol, lo, hi, window):
+    """The window's prisms ``(2 * rows * cols, 6, 3)`` in the field's frame and which lie within
+    MuJoCo's sub-grid ``[lo, hi]`` (rows, columns) of cells."""
+    rows, cols = window
+    dx = 2 * h_size[0] / (ncol - 1)
+    dy = 2 * h_size[1] / (nrow - 1)
+    r = lo[0] + jnp.arange(rows)[:, None]
+    c = lo[1] + 1 + jnp.arange(cols)[None, :]
+    active = (r < hi[0]) & (c <= hi[1])
+
+    def corner(dr, dc):
+        row, col = r + dr, c - 1 + dc
+        z = heights[adr + jnp.clip(row, 0, nrow - 1) * ncol + jnp.clip(col, 0, ncol - 1)]
+        top = jnp.stack(jnp.broadcast_arrays(dx * col - h_size[0], dy * row - h_size[1], z * h_size[2]), -1)
+        return top
+
+    # MuJoCo's two triangles of cell (r, c-1..c): its diagonal runs from (r, c-1) to (r+1, c).
+    tris = [(corner(1, 0), corner(0, 0), corner(1, 1)), (corner(0, 0), corner(1, 1), corner(0, 1))]
+    prisms = []
+    for t in tris:
+        top = jnp.stack(t, axis=-2)  # (rows, cols, 3, 3)
+        bottom = top.at[..., 2].set(-h_size[3])
+        prisms.append(jnp.concatenate([bottom, top], axis=-2))
+    prisms = jnp.stack(prisms, axis=2).reshape(-1, 6, 3)  # cell by cell, triangle 0 then 1
+    active = jnp.repeat(active.reshape(-1), 2)
+    return prisms, active
+
+
+def hfield_sphere(
+    h_pos, h_mat, h_size, s_pos, s_mat, s_size, heights, adr, nrow, ncol, hsize, rbound, margin, *, window
+):
+    """One candidate per prism of the window (see module doc), the normal from field to sphere."""
+    del h_size, s_mat
+    local = h_mat.T @ (s_pos - h_pos)
+    radius = s_size[0]
+    lo_xy, hi_xy = local[:2] - radius - margin, local[:2] + radius + margin
+    reach = rbound + margin
+    inside = (
+        jnp.all(jnp.abs(local[:2]) <= hsize[:2] + reach)
+        & (local[2] - reach <= hsize[2])
+        & (local[2] + reach >= -hsize[3])
+    )
+    inside &= jnp.all(lo_xy <= hsize[:2]) & jnp.all(hi_xy >= -hsize[:2])
+    inside &= (local[2] - radius - margin <= hsize[2]) & (local[2] + radius + margin >= -hsize[3])
+    cells = jnp.stack([nrow, ncol]) - 1
+    half = hsize[1::-1]  # (y, x): rows run along y, columns along x
+    lo = jnp.maximum(jnp.floor((lo_xy[::-1] + half) / (2.0 * half) * cells).astype(jnp.int32), 0)
+    hi = jnp.minimum(jnp.ceil((hi_xy[::-1] + half) / (2.0 * half) * cells).astype(jnp.int32), cells)
+    prisms, active = _window_prisms(hsize, heights, adr, nrow, ncol, lo, hi, window)
+    dist, pos, normal = jax.vmap(_sphere_prism, (None, None, 0))(local, radius, prisms)
+    below = jnp.all(prisms[:, 3:, 2] + margin < local[2] - radius, axis=-1)  # the prism height test
+    keep = inside & active & ~below & (dist < margin)
+    dist = jnp.where(keep, dist, _FAR)
+    return dist, h_pos + pos @ h_mat.T, normal @ h_mat.T, jnp.zeros_like(pos)
