@@ -26,8 +26,11 @@ a candidate MuJoCo would not report gets ``dist = _FAR`` (beyond any margin, so 
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from fastrl.physics.collision_primitive import _FAR, _normalize
 from fastrl.physics.math import cross, dot
@@ -158,6 +161,32 @@ def _window_prisms(h_size, heights, adr, nrow, ncol, lo, hi, window):
     return prisms, active
 
 
+def _hfield(
+    h_pos, h_mat, local, lo_xyz, hi_xyz, collide, heights, adr, nrow, ncol, hsize, rbound, margin, window
+):
+    """Candidates of a geom against the window's prisms: ``collide(prism)`` gives one contact in
+    the field's frame; ``local`` is the geom's centre there and ``lo_xyz``/``hi_xyz`` its box."""
+    reach = rbound + margin
+    inside = (
+        jnp.all(jnp.abs(local[:2]) <= hsize[:2] + reach)
+        & (local[2] - reach <= hsize[2])
+        & (local[2] + reach >= -hsize[3])
+    )
+    lo_xy, hi_xy = lo_xyz[:2] - margin, hi_xyz[:2] + margin
+    inside &= jnp.all(lo_xy <= hsize[:2]) & jnp.all(hi_xy >= -hsize[:2])
+    inside &= (lo_xyz[2] - margin <= hsize[2]) & (hi_xyz[2] + margin >= -hsize[3])
+    cells = jnp.stack([nrow, ncol]) - 1
+    half = hsize[1::-1]  # (y, x): rows run along y, columns along x
+    lo = jnp.maximum(jnp.floor((lo_xy[::-1] + half) / (2.0 * half) * cells).astype(jnp.int32), 0)
+    hi = jnp.minimum(jnp.ceil((hi_xy[::-1] + half) / (2.0 * half) * cells).astype(jnp.int32), cells)
+    prisms, active = _window_prisms(hsize, heights, adr, nrow, ncol, lo, hi, window)
+    dist, pos, normal = jax.vmap(collide)(prisms)
+    below = jnp.all(prisms[:, 3:, 2] + margin < lo_xyz[2], axis=-1)  # the prism height test
+    keep = inside & active & ~below & (dist < margin)
+    dist = jnp.where(keep, dist, _FAR)
+    return dist, h_pos + pos @ h_mat.T, normal @ h_mat.T, jnp.zeros_like(pos)
+
+
 def hfield_sphere(
     h_pos, h_mat, h_size, s_pos, s_mat, s_size, heights, adr, nrow, ncol, hsize, rbound, margin, *, window
 ):
@@ -165,22 +194,76 @@ def hfield_sphere(
     del h_size, s_mat
     local = h_mat.T @ (s_pos - h_pos)
     radius = s_size[0]
-    lo_xy, hi_xy = local[:2] - radius - margin, local[:2] + radius + margin
-    reach = rbound + margin
-    inside = (
-        jnp.all(jnp.abs(local[:2]) <= hsize[:2] + reach)
-        & (local[2] - reach <= hsize[2])
-        & (local[2] + reach >= -hsize[3])
-    )
-    inside &= jnp.all(lo_xy <= hsize[:2]) & jnp.all(hi_xy >= -hsize[:2])
-    inside &= (local[2] - radius - margin <= hsize[2]) & (local[2] + radius + margin >= -hsize[3])
-    cells = jnp.stack([nrow, ncol]) - 1
-    half = hsize[1::-1]  # (y, x): rows run along y, columns along x
-    lo = jnp.maximum(jnp.floor((lo_xy[::-1] + half) / (2.0 * half) * cells).astype(jnp.int32), 0)
-    hi = jnp.minimum(jnp.ceil((hi_xy[::-1] + half) / (2.0 * half) * cells).astype(jnp.int32), cells)
-    prisms, active = _window_prisms(hsize, heights, adr, nrow, ncol, lo, hi, window)
-    dist, pos, normal = jax.vmap(_sphere_prism, (None, None, 0))(local, radius, prisms)
-    below = jnp.all(prisms[:, 3:, 2] + margin < local[2] - radius, axis=-1)  # the prism height test
-    keep = inside & active & ~below & (dist < margin)
-    dist = jnp.where(keep, dist, _FAR)
-    return dist, h_pos + pos @ h_mat.T, normal @ h_mat.T, jnp.zeros_like(pos)
+    collide = functools.partial(_sphere_prism, local, radius)
+    field = (heights, adr, nrow, ncol, hsize, rbound, margin, window)
+    return _hfield(h_pos, h_mat, local, local - radius, local + radius, collide, *field)
+
+
+# Edges of the prism (vertex pairs): bottom, top, vertical.
+_PRISM_EDGES = ((0, 1), (1, 2), (2, 0), (3, 4), (4, 5), (5, 3), (0, 3), (1, 4), (2, 5))
+_SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+
+
+def _segments_closest(a0, a1, b0, b1):
+    """Closest points of segments [a0, a1] and [b0, b1] (clamped line parameters)."""
+    u, v, w = a1 - a0, b1 - b0, a0 - b0
+    uu, uv, vv, uw, vw = dot(u, u), dot(u, v), dot(v, v), dot(u, w), dot(v, w)
+    den = jnp.maximum(uu * vv - uv * uv, 1e-30)
+    s = jnp.clip((uv * vw - vv * uw) / den, 0.0, 1.0)
+    t = jnp.clip((uv * s + vw) / jnp.maximum(vv, 1e-30), 0.0, 1.0)
+    s = jnp.clip((uv * t - uw) / jnp.maximum(uu, 1e-30), 0.0, 1.0)
+    return a0 + s * u, b0 + t * v
+
+
+def _box_prism(centre, rot, half, prism):
+    """Contact of a box with a convex prism by separating axes (both polytopes, so the minimum
+    over face normals and edge-edge cross products is the exact penetration, as MuJoCo's EPA
+    finds it): ``(dist, pos, normal)``, the normal from the prism to the box. The contact point
+    is midway between the witnesses: the box's deepest corner (a prism face), the prism's deepest
+    corner (a box face), or the two edges' closest points; tied corners are averaged."""
+    signs = jnp.asarray(_SIGNS, half.dtype)
+    corners = centre + (signs * half) @ rot.T
+    faces, _ = _prism_faces(prism)
+    pe = jnp.stack([prism[j] - prism[i] for i, j in _PRISM_EDGES])
+    cross_axes = jnp.cross(rot.T[:, None, :], pe[None, :, :]).reshape(-1, 3)
+    lengths = jnp.linalg.norm(cross_axes, axis=-1)
+    usable = lengths > 1e-9 * jnp.max(lengths)
+    axes = jnp.concatenate([faces, rot.T, cross_axes / jnp.where(usable, lengths, 1.0)[:, None]])
+    valid = jnp.concatenate([jnp.ones(8, bool), usable])
+    pb, pp = corners @ axes.T, prism @ axes.T  # (8, A), (6, A)
+    up = pp.max(0) - pb.min(0)  # overlap with the box on the + side of the axis
+    down = pb.max(0) - pp.min(0)
+    overlap = jnp.where(valid, jnp.minimum(up, down), jnp.inf)
+    k = jnp.argmin(overlap)
+    depth = overlap[k]
+    n = jnp.where(up[k] <= down[k], axes[k], -axes[k])
+    tol = 1e-9 * (1.0 + jnp.max(jnp.abs(half)))
+    box_d, prism_d = corners @ n, prism @ n
+    deep_box = box_d <= box_d.min() + tol
+    deep_prism = prism_d >= prism_d.max() - tol
+    box_pt = jnp.sum(corners * deep_box[:, None], 0) / jnp.sum(deep_box)
+    prism_pt = jnp.sum(prism * deep_prism[:, None], 0) / jnp.sum(deep_prism)
+    # Edge-edge: the box edge along axis i nearest the prism, against prism edge j.
+    i, j = jnp.maximum(k - 8, 0) // 9, jnp.maximum(k - 8, 0) % 9
+    along = rot[:, i] * half[i]
+    mids = corners - (signs[:, i][:, None] * along)  # each corner's edge midpoint along axis i
+    mid = mids[jnp.argmin(mids @ n)]
+    edges = jnp.asarray(_PRISM_EDGES)
+    x1e, x2e = _segments_closest(prism[edges[j, 0]], prism[edges[j, 1]], mid - along, mid + along)
+    face_of_prism, face_of_box = k < 5, (k >= 5) & (k < 8)
+    x2 = jnp.where(face_of_prism, box_pt, jnp.where(face_of_box, prism_pt - depth * n, x2e))
+    x1 = jnp.where(face_of_prism, box_pt + depth * n, jnp.where(face_of_box, prism_pt, x1e))
+    return -depth, 0.5 * (x1 + x2), n
+
+
+def hfield_box(
+    h_pos, h_mat, h_size, b_pos, b_mat, b_size, heights, adr, nrow, ncol, hsize, rbound, margin, *, window
+):
+    """One candidate per prism of the window, by separating axes (``_box_prism``)."""
+    del h_size
+    local = h_mat.T @ (b_pos - h_pos)
+    rot = h_mat.T @ b_mat
+    extent = jnp.abs(rot) @ b_size
+    collide = functools.partial(_box_prism, local, rot, b_size)
+    field = (heights, adr, nrow, ncol, hsize, rbound, margin, window)
+    return _hfield(h_pos, h_mat, local, local - extent, local + extent, collide, *field)

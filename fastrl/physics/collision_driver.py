@@ -39,6 +39,7 @@ PRIMITIVES = {
 SHAPED = {
     (GeomType.PLANE, GeomType.MESH): (convex.plane_mesh, 4),
     (GeomType.HFIELD, GeomType.SPHERE): (convex.hfield_sphere, None),
+    (GeomType.HFIELD, GeomType.BOX): (convex.hfield_box, None),
 }
 SUPPORTED = {**PRIMITIVES, **SHAPED}
 

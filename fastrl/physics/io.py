@@ -494,16 +494,23 @@ def _geometry_fields(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict:
     )  # fmt: skip
 
 
-def _candidate_count(m: mujoco.MjModel, pairs: list[tuple[int, int]], window: np.ndarray) -> int:
-    """Candidate contacts of all pairs, as ``collision_driver.contact_layout`` lays them out."""
+def _default_slots(m: mujoco.MjModel, pairs: list[tuple[int, int]], window: np.ndarray) -> int:
+    """Contact slots when the scene does not set ``nconmax``: ``default_nconmax`` of the candidates
+    (as ``collision_driver.contact_layout`` lays them out), plus one slot per height-field
+    candidate. On rough terrain a foot often touches several prisms at once (MuJoCo C reports 9
+    contacts for the Barkour's four feet on its terrain at rest), so those candidates all keep a
+    slot rather than share a quarter of one."""
     groups: dict[tuple[int, int], list[int]] = {}
     for k, (a, b) in enumerate(pairs):
         groups.setdefault((int(m.geom_type[a]), int(m.geom_type[b])), []).append(k)
-    total = 0
+    other = terrain = 0
     for key, ks in groups.items():
         count = SUPPORTED[key][1]
-        total += len(ks) * (count if count is not None else 2 * int(np.prod(window[ks].max(axis=0))))
-    return total
+        if count is None:  # a height field: two prisms per cell of the group's window
+            terrain += len(ks) * 2 * int(np.prod(window[ks].max(axis=0)))
+        else:
+            other += len(ks) * count
+    return default_nconmax(other) + terrain
 
 
 def model_from_mujoco(
@@ -526,8 +533,8 @@ def model_from_mujoco(
     g2 = np.array([p[1] for p in pairs], np.int32)
     geometry = _geometry_fields(m, pairs)
     if nconmax is None:
-        ncand = _candidate_count(m, pairs, geometry["pair_window"])
-        nconmax = m.nconmax if m.nconmax > 0 else default_nconmax(ncand)
+        slots = _default_slots(m, pairs, geometry["pair_window"])
+        nconmax = m.nconmax if m.nconmax > 0 else slots
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
     eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
