@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl.physics import collision_convex as convex
+from fastrl.physics import collision_gjk as gjk
 from fastrl.physics import collision_primitive as prim
 from fastrl.physics.math import cross, dot
 from fastrl.physics.types import Data, GeomType, Model
@@ -41,6 +42,24 @@ SHAPED = {
     (GeomType.HFIELD, GeomType.SPHERE): (convex.hfield_sphere, None),
     (GeomType.HFIELD, GeomType.BOX): (convex.hfield_box, None),
 }
+# Every other pair of convex geoms (meshes' hulls, cylinders against cylinders and boxes,
+# ellipsoids) goes through GJK/EPA: one contact per pair.
+_CONVEX = (
+    GeomType.SPHERE,
+    GeomType.CAPSULE,
+    GeomType.ELLIPSOID,
+    GeomType.CYLINDER,
+    GeomType.BOX,
+    GeomType.MESH,
+)
+SHAPED.update(
+    {
+        (t1, t2): (gjk.convex_pair(t1, t2), 1)
+        for t1 in _CONVEX
+        for t2 in _CONVEX
+        if t1 <= t2 and (t1, t2) not in PRIMITIVES
+    }
+)
 SUPPORTED = {**PRIMITIVES, **SHAPED}
 
 
@@ -101,6 +120,12 @@ def _shape_args(m: Model, key: tuple[int, int], idx: np.ndarray) -> tuple[tuple,
     margin = m.pair_margin[idx]
     if key == (GeomType.PLANE, GeomType.MESH):
         return (*_mesh_args(m, g2), margin), (0,) * 5, {}
+    if key[0] != GeomType.HFIELD:  # GJK/EPA: each side's mesh vertices (if a mesh)
+        verts = [
+            _mesh_args(m, g)[0] if t == GeomType.MESH else jnp.zeros((g.size, 1, 3))
+            for g, t in ((g1, key[0]), (g2, key[1]))
+        ]
+        return (*verts, margin), (0, 0, 0), {}
     hf = m.geom_hfieldid[g1]
     ints = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
     args = (m.hfield_data, ints(m.hfield_adr[hf]), ints(m.hfield_nrow[hf]), ints(m.hfield_ncol[hf]),
