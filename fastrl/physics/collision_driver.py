@@ -52,26 +52,64 @@ _CONVEX = (
     GeomType.BOX,
     GeomType.MESH,
 )
-SHAPED.update(
-    {
-        (t1, t2): (gjk.convex_pair(t1, t2), 1)
-        for t1 in _CONVEX
-        for t2 in _CONVEX
-        if t1 <= t2 and (t1, t2) not in PRIMITIVES
-    }
-)
+GJK_PAIRS = {(t1, t2) for t1 in _CONVEX for t2 in _CONVEX if t1 <= t2 and (t1, t2) not in PRIMITIVES}
+SHAPED.update({key: (gjk.convex_pair(*key), 1) for key in sorted(GJK_PAIRS)})
 SUPPORTED = {**PRIMITIVES, **SHAPED}
 
 
+def _hull_bucket(m: Model, g: np.ndarray) -> np.ndarray:
+    """Each geom's mesh size rounded up to a power of two (0 for non-meshes): pairs are grouped by
+    it so that a group's meshes are padded to at most twice their own vertex count."""
+    num = np.where(m.geom_meshid[g] >= 0, m.mesh_vertnum[np.maximum(m.geom_meshid[g], 0)], 0)
+    return np.where(num > 0, 2 ** np.ceil(np.log2(np.maximum(num, 1))), 0).astype(np.int64)
+
+
 def pair_groups(m: Model) -> list[tuple[tuple[int, int], np.ndarray]]:
-    """Pair indices grouped by geom-type pair, in a fixed order."""
+    """Pair indices grouped by geom-type pair (and, with meshes, by hull size), in a fixed order."""
     t1, t2 = m.geom_type[m.pair_geom1], m.geom_type[m.pair_geom2]
     groups = []
     for key in SUPPORTED:
         idx = np.flatnonzero((t1 == key[0]) & (t2 == key[1]))
-        if idx.size:
+        if not idx.size:
+            continue
+        if GeomType.MESH in key:
+            sizes = np.stack([_hull_bucket(m, m.pair_geom1[idx]), _hull_bucket(m, m.pair_geom2[idx])], 1)
+            for size in np.unique(sizes, axis=0):
+                groups.append((key, idx[np.all(sizes == size, axis=1)]))
+        else:
             groups.append((key, idx))
     return groups
+
+
+def gjk_slots(n: int) -> int:
+    """How many of a group's ``n`` GJK/EPA pairs are solved each step: those whose bounding
+    spheres overlap most (MuJoCo skips pairs whose bounding spheres, grown by the margin, do not
+    overlap; the others get no contact). A quarter of the group, at least 32."""
+    return min(n, max(32, -(-n // 4)))
+
+
+def _cull(m: Model, d: Data, idx: np.ndarray, fn, args, axes):
+    """``fn`` vmapped over the ``gjk_slots`` pairs of group ``idx`` whose bounding spheres overlap
+    most; the rest, and any whose spheres do not overlap, get no contact (``_FAR``)."""
+    g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
+    reach = m.geom_rbound[g1] + m.geom_rbound[g2] + m.pair_margin[idx]
+    overlap = reach - jnp.linalg.norm(d.geom_xpos[g1] - d.geom_xpos[g2], axis=-1)
+    k = gjk_slots(idx.size)
+    if k < idx.size:
+        overlap, chosen = jax.lax.top_k(overlap, k)
+        args = tuple(a if ax is None else a[chosen] for a, ax in zip(args, axes, strict=True))
+    dist, pos, normal, tangent = jax.vmap(fn, axes)(*args)
+    dist = jnp.where(overlap[:, None] >= 0, dist, prim._FAR)
+    if k < idx.size:
+        full = lambda x, fill: jnp.full((idx.size,) + x.shape[1:], fill, x.dtype).at[chosen].set(x)  # noqa: E731
+        dist, pos, normal, tangent = (
+            full(dist, prim._FAR),
+            full(pos, 0.0),
+            full(normal, 0.0),
+            full(tangent, 0.0),
+        )
+        normal = normal.at[..., 2].set(jnp.where(dist < prim._FAR, normal[..., 2], 1.0))
+    return dist, pos, normal, tangent
 
 
 def _window(m: Model, idx: np.ndarray) -> tuple[int, int]:
@@ -161,7 +199,10 @@ def collision(m: Model, d: Data) -> Data:
                  d.geom_xpos[g2], d.geom_xmat[g2], m.geom_size[g2])  # fmt: skip
         extra, axes, static = _shape_args(m, key, idx) if key in SHAPED else ((), (), {})
         fn = functools.partial(fn, **static) if static else fn
-        dist, pos, normal, tangent = jax.vmap(fn, (0,) * 6 + axes)(*poses, *extra)
+        if key in GJK_PAIRS:  # bounding spheres first
+            dist, pos, normal, tangent = _cull(m, d, idx, fn, (*poses, *extra), (0,) * 6 + axes)
+        else:
+            dist, pos, normal, tangent = jax.vmap(fn, (0,) * 6 + axes)(*poses, *extra)
         dists.append(dist.reshape(-1))
         poss.append(pos.reshape(-1, 3))
         normals.append(normal.reshape(-1, 3))

