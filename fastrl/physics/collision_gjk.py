@@ -64,7 +64,7 @@ def core_radius(gtype: int, size):
 
 def _solve3(g, r):
     """Solves the symmetric 3x3 systems ``g x = r`` (batched) by cofactors; ``ok`` where the
-    determinant is not negligible against the matrix's scale."""
+    determinant is not zero (a nearly flat face's weights are then checked by the caller)."""
     c00 = g[..., 1, 1] * g[..., 2, 2] - g[..., 1, 2] * g[..., 2, 1]
     c01 = g[..., 1, 2] * g[..., 2, 0] - g[..., 1, 0] * g[..., 2, 2]
     c02 = g[..., 1, 0] * g[..., 2, 1] - g[..., 1, 1] * g[..., 2, 0]
@@ -75,10 +75,9 @@ def _solve3(g, r):
         [jnp.stack([c00, c01, c02], -1), jnp.stack([c01, c11, c12], -1), jnp.stack([c02, c12, c22], -1)], -2
     )
     det = g[..., 0, 0] * c00 + g[..., 0, 1] * c01 + g[..., 0, 2] * c02
-    scale = jnp.max(jnp.abs(g), axis=(-2, -1)) ** 3
-    ok = jnp.abs(det) > 1e-12 * scale
+    ok = det != 0
     x = jnp.einsum("...ij,...j->...i", adj, r) / jnp.where(ok, det, 1.0)[..., None]
-    return x, ok
+    return x, ok & jnp.all(jnp.isfinite(x), axis=-1)
 
 
 def _closest(points, used):
@@ -130,7 +129,7 @@ def gjk(support_a, support_b, start, iterations: int):
         w = a - b
         gap = dot(x, x) - dot(x, w)
         converged = gap <= 1e-12 * jnp.maximum(dot(x, x), 1e-30)
-        done = done | converged | (dot(x, x) < 1e-30)
+        done = done | converged | (dot(x, x) < 1e-30) | jnp.all(used)  # all four: origin enclosed
         slot = jnp.argmin(used)  # a free slot (the simplex never holds four while outside)
         new_points = points.at[slot].set(w)
         new_used = used.at[slot].set(True)
@@ -197,7 +196,7 @@ def epa(support_a, support_b, simplex, iterations: int):
         free = ~alive | seen
         slots = jnp.argsort(~free, stable=True)  # free slots first
         flat = horizon.reshape(-1)
-        slot = jnp.where(flat, slots[jnp.cumsum(flat) - 1], nf).reshape(nf, 3)
+        slot = jnp.where(flat, slots[jnp.cumsum(flat) - 1], nf).reshape(nf, 3).astype(jnp.int32)
         start, end = faces, faces[:, nxt]  # each edge's two vertices
         new = (k + 4).astype(jnp.int32)
         first = jnp.full(nv, nf, jnp.int32).at[jnp.where(horizon, start, nv)].set(slot, mode="drop")
