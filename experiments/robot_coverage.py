@@ -1,7 +1,7 @@
 """Which real robot scenes fastrl loads, and whether those it loads track MuJoCo C.
 
     python experiments/robot_coverage.py                 # all scenes of the asset wheels (~10 min)
-    python experiments/robot_coverage.py --quick         # 3 scenes, 0.1 s and 40 random steps, for CI
+    python experiments/robot_coverage.py --quick         # 2 scenes, 0.1 s and 40 random steps, for CI
     python experiments/robot_coverage.py --throughput    # adds control steps/s at batch 1024
     python experiments/robot_coverage.py --meshes-off    # mesh/height-field geoms collide with nothing
 
@@ -76,10 +76,9 @@ TRACK_TOL = 1e-4
 TOL = "1e-4"  # TRACK_TOL as the page writes it
 ROOT_TOL = 0.01  # m: float32 root vs MuJoCo C
 QUICK_SCENES = (
-    # all small (nq 19), so each compiles in seconds even once the features it lacks land
-    "playground/locomotion/go1/scene_mjx_feetonly_flat_terrain",  # loads
-    "menagerie/unitree_go1/scene",  # refused (a cylinder-cylinder collision)
-    "playground/locomotion/go1/scene_mjx_feetonly_rough_terrain",  # refused: height field
+    # small (nq 19) and quick to compile; GJK/EPA scenes compile for a minute, so none is here
+    "playground/locomotion/go1/scene_mjx_feetonly_flat_terrain",  # spheres on a plane
+    "playground/locomotion/go1/scene_mjx_feetonly_rough_terrain",  # spheres on a height field
 )
 _PREFIX = "fastrl cannot simulate this model yet: "
 CONVERGED_ITERATIONS = 30
@@ -121,6 +120,7 @@ class SceneResult:
     root_floor_f32: float | None = None
     random_steps: int = 0
     random_finite: bool | None = None  # finite and not diverged after random_steps (float32)
+    shortened: str = ""  # why the tracking and random runs were cut short (--budget), if they were
     fastrl_sps: float | None = None  # --throughput: control steps/s at batch 1024
     mujoco_sps: float | None = None  # --throughput: mujoco.rollout, 2 threads
 
@@ -279,8 +279,7 @@ def _float32(row: SceneResult, mj: mujoco.MjModel, args) -> None:
             dist = np.linalg.norm(qpos[:, root] - ref, axis=1)
             row.root_err_f32 = float(np.where(np.isfinite(dist), dist, np.inf).max())
             row.root_floor_f32 = _rounded_state_drift(mj, root, ref)
-        row.random_steps = args.random_steps
-        row.random_finite = _random_finite(mj, model, run, args.random_steps, args.chunk)
+        row.random_finite = _random_finite(mj, model, run, row.random_steps, args.chunk)
 
 
 def _rounded_state_drift(mj: mujoco.MjModel, root: np.ndarray, ref: np.ndarray) -> float:
@@ -312,6 +311,38 @@ def _random_finite(mj: mujoco.MjModel, model: physics.Model, run, steps: int, ch
     return bool(finite and not bool(d.diverged))
 
 
+def _step_seconds(model: physics.Model, run, mj: mujoco.MjModel, chunk: int) -> float:
+    """Wall seconds per fastrl step (float64, one scene), timed over one chunk after compiling."""
+    d_mj, _ = _initial(mj)
+    d0 = physics.make_data(model, qpos=d_mj.qpos.copy(), qvel=d_mj.qvel.copy(), ctrl=d_mj.ctrl.copy())
+    ctrls = jnp.asarray(np.broadcast_to(d_mj.ctrl, (chunk, mj.nu)))
+    jax.block_until_ready(run(d0, ctrls))
+    t0 = time.perf_counter()
+    jax.block_until_ready(run(d0, ctrls))
+    return (time.perf_counter() - t0) / chunk
+
+
+def _budgeted(row: SceneResult, model: physics.Model, run, mj: mujoco.MjModel, args) -> list[str]:
+    """The comparisons to run, and ``row.steps``/``row.random_steps`` cut so that a scene whose
+    steps are slow (meshes with thousands of hull vertices) keeps within ``args.budget`` seconds:
+    such a scene runs the default and converged comparisons only, over fewer steps (the table's
+    steps column says how many)."""
+    variants = list(args.variants)
+    row.random_steps = args.random_steps
+    if not args.budget:
+        return variants
+    per_step = _step_seconds(model, run, mj, args.chunk)
+    # Each comparison steps once per tracking step, as do float32 tracking and the random run.
+    needed = per_step * (row.steps * (len(variants) + 1) + row.random_steps)
+    if needed > args.budget:
+        variants = [v for v in variants if v in ("default", "converged")]
+        steps = int(args.budget / (per_step * (len(variants) + 2)))
+        row.steps = max(args.chunk, steps // args.chunk * args.chunk)
+        row.random_steps = min(row.random_steps, row.steps)
+        row.shortened = f"{per_step * 1e3:.0f} ms per step"
+    return variants
+
+
 def _track(row: SceneResult, mj: mujoco.MjModel, model: physics.Model, args) -> None:
     """The tracking comparisons of ``args.variants`` (see ``VARIANTS``), then random controls."""
     row.start = _initial(mj)[1]
@@ -322,18 +353,22 @@ def _track(row: SceneResult, mj: mujoco.MjModel, model: physics.Model, args) -> 
         "exact": model.solver_iterations,
         "converged": CONVERGED_ITERATIONS,
     }
+    run = _chunk_fn(model)  # one compile for the default comparison and the random controls
+    variants = _budgeted(row, model, run, mj, args)
     cases = {
-        "default": (mj, model),
-        "scene": (mj, physics.model_from_mujoco(mj, solver_iterations=row.solver_iterations["scene"])),
-        "exact": (mj, physics.model_from_mujoco(mj, linesearch="exact")),
-        "converged": (
+        "default": lambda: (mj, model),
+        "scene": lambda: (
+            mj,
+            physics.model_from_mujoco(mj, solver_iterations=row.solver_iterations["scene"]),
+        ),
+        "exact": lambda: (mj, physics.model_from_mujoco(mj, linesearch="exact")),
+        "converged": lambda: (
             _converged(mj),
             physics.model_from_mujoco(mj, solver_iterations=CONVERGED_ITERATIONS, linesearch="exact"),
         ),
     }
-    run = _chunk_fn(model)  # one compile for the default comparison and the random controls
-    for key in args.variants:
-        mj_k, model_k = cases[key]
+    for key in variants:
+        mj_k, model_k = cases[key]()
         run_k = run if key == "default" else _chunk_fn(model_k)
         row.qpos_err[key], row.first_off[key] = _qpos_error(mj_k, model_k, run_k, row.steps, args.chunk)
     _float32(row, mj, args)
@@ -447,6 +482,10 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         f"float32 each step); {s['random_finite']} of "
         f"{s['loads']} stay finite over {meta['random_steps']} steps of random controls.",
         f"- Errors other than a refusal: {', '.join(s['errors']) or 'none'}.",
+        f"- Shortened to keep within {meta.get('budget') or 0:g} s of fastrl stepping per scene "
+        "(default and converged comparisons only, over the steps shown): "
+        + (", ".join(f"`{r.name}` ({r.shortened})" for r in rows if r.shortened) or "none")
+        + ".",
         f"- Scenes one missing feature away from loading: {len(s['one_feature_away'])}"
         + "".join(f"\n  - `{n}`: {f}" for n, f in s["one_feature_away"].items()),
         "",
@@ -522,11 +561,17 @@ def _fastrl_version() -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--quick", action="store_true", help="3 scenes, 0.1 s, 40 random steps, 2 comparisons, for CI"
+        "--quick", action="store_true", help="2 scenes, 0.1 s, 40 random steps, 2 comparisons, for CI"
     )
     parser.add_argument("--scenes", nargs="*", help="only scenes whose name contains one of these")
     parser.add_argument("--seconds", type=float, default=2.0, help="tracking horizon (simulated s)")
     parser.add_argument("--random-steps", type=int, default=1000)
+    parser.add_argument(
+        "--budget",
+        type=float,
+        default=300.0,
+        help="wall seconds of fastrl stepping per scene; slower scenes track fewer steps (0: no limit)",
+    )
     parser.add_argument("--chunk", type=int, default=100, help="steps per jitted scan call")
     parser.add_argument("--variants", nargs="*", choices=list(VARIANTS), default=list(VARIANTS))
     parser.add_argument("--throughput", action="store_true", help="time batch 1024 (quiet machine only)")
@@ -546,7 +591,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.quick:  # as written and converged only: two compiles fewer
-        args.seconds, args.random_steps, args.chunk = 0.1, 40, 20
+        args.seconds, args.random_steps, args.chunk, args.budget = 0.1, 40, 20, 0.0
         args.variants = [v for v in args.variants if v in ("default", "converged")]
     fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     jax.config.update("jax_enable_x64", True)
@@ -564,6 +609,7 @@ def main() -> None:
         "jax": jax.__version__,
         "command": " ".join(["python experiments/robot_coverage.py", *sys.argv[1:]]),
         "seconds": args.seconds,
+        "budget": args.budget,
         "random_steps": args.random_steps,
         "batch": args.batch,
         "variants": args.variants,
