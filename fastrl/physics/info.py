@@ -14,8 +14,31 @@ import collections
 import mujoco
 import numpy as np
 
-from fastrl.physics import constraint, equality, io, tendon
+from fastrl.physics import collision_driver, constraint, equality, io, tendon
 from fastrl.physics.types import GeomType, JointType, Model
+
+
+def _collision(m: Model) -> str:
+    """Each geom-type pair's method and candidate contacts per pair."""
+    parts: dict[str, list[int]] = {}
+    for key, idx in collision_driver.pair_groups(m):
+        name = "-".join(GeomType(t).name.lower() for t in key)
+        each = collision_driver.candidates_per_pair(m, key, idx)
+        if key in collision_driver.GJK_PAIRS:
+            how = f"GJK/EPA, {each} each"
+        elif GeomType.HFIELD in key:
+            rows, cols = (int(w) for w in m.pair_window[idx].max(axis=0))
+            how = f"{rows}x{cols}-cell window, {each} each"
+        else:
+            how = f"{each} each"
+        entry = parts.setdefault(f"{name} ({how}", [0, 0])
+        entry[0] += idx.size
+        if key in collision_driver.GJK_PAIRS:
+            entry[1] += collision_driver.gjk_slots(idx.size)
+    out = []
+    for label, (n, solved) in parts.items():
+        out.append(f"{n} {label}" + (f"; {solved} solved per step)" if solved and solved < n else ")"))
+    return ", ".join(out) or "none"
 
 
 def summary_lines(m: Model) -> list[str]:
@@ -43,6 +66,7 @@ def summary_lines(m: Model) -> list[str]:
         f"tendons         {_tendons(m)}",
         f"geoms           {m.ngeom} ({fmt(geoms)})",
         f"contact pairs   {m.npair} kept of {all_pairs} geom pairs ({fmt(pairs)})",
+        f"collision       {_collision(m)}",
         f"contacts        {ncon} candidates (fixed count, active when within margin); "
         f"rows for the {constraint.contact_slots(m)} deepest (nconmax {m.nconmax})",
         f"limits          {constraint.limited_joints(m).size} joints, "
