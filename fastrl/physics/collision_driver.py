@@ -53,7 +53,7 @@ _CONVEX = (
     GeomType.MESH,
 )
 GJK_PAIRS = {(t1, t2) for t1 in _CONVEX for t2 in _CONVEX if t1 <= t2 and (t1, t2) not in PRIMITIVES}
-SHAPED.update({key: (gjk.convex_pair(*key), 1) for key in sorted(GJK_PAIRS)})
+SHAPED.update({key: (gjk.convex_pair(*key), gjk.contacts_per_pair(*key)) for key in sorted(GJK_PAIRS)})
 SUPPORTED = {**PRIMITIVES, **SHAPED}
 
 
@@ -163,7 +163,8 @@ def _shape_args(m: Model, key: tuple[int, int], idx: np.ndarray) -> tuple[tuple,
             _mesh_args(m, g)[0] if t == GeomType.MESH else jnp.zeros((g.size, 1, 3))
             for g, t in ((g1, key[0]), (g2, key[1]))
         ]
-        return (*verts, margin), (0, 0, 0), {}
+        rbound = jnp.minimum(m.geom_rbound[g1], m.geom_rbound[g2])
+        return (*verts, margin, rbound), (0, 0, 0, 0), {}
     hf = m.geom_hfieldid[g1]
     ints = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
     args = (m.hfield_data, ints(m.hfield_adr[hf]), ints(m.hfield_nrow[hf]), ints(m.hfield_ncol[hf]),

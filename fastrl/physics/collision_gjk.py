@@ -263,13 +263,49 @@ EPA_ITERATIONS_CURVED = 64
 _CURVED = (GeomType.CYLINDER, GeomType.ELLIPSOID)
 
 
-def convex_pair(type1: int, type2: int):
-    """The collision function of two convex geom types: one contact, by GJK on their cores and,
-    where the cores overlap, EPA (see module doc). Signature as the driver's shaped functions:
-    poses and sizes, then each geom's mesh vertices (ignored unless a mesh) and the margin."""
-    epa_iterations = EPA_ITERATIONS_CURVED if {type1, type2} & set(_CURVED) else EPA_ITERATIONS
+# Pairs whose surfaces can meet along a face or an edge get MuJoCo's multi-contact search:
+# MULTI_CONTACTS candidates per pair, the first the plain contact.
+_FLAT = (GeomType.CAPSULE, GeomType.CYLINDER, GeomType.BOX, GeomType.MESH)
+MULTI_CONTACTS = 5
+_PERTURBATION = 1e-3  # radians (MuJoCo's multiccd perturbation angle)
+_DISTINCT = 1e-3  # a new contact counts if this far (times the smaller rbound) from the others
 
-    def collide(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, margin):
+
+def contacts_per_pair(type1: int, type2: int) -> int:
+    """Candidate contacts of a GJK/EPA pair: several where both shapes can rest on a face."""
+    return MULTI_CONTACTS if type1 in _FLAT and type2 in _FLAT else 1
+
+
+def _rotation(axis, angle):
+    """Rotation matrix about unit ``axis`` by ``angle`` (Rodrigues)."""
+    k = jnp.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]], axis.dtype)
+    return jnp.eye(3, dtype=axis.dtype) + jnp.sin(angle) * k + (1.0 - jnp.cos(angle)) * (k @ k)
+
+
+def _tangents(normal):
+    """Two unit tangents completing ``normal`` to a right-handed frame."""
+    other = jnp.where(jnp.abs(normal[1]) < 0.5, jnp.array([0.0, 1.0, 0.0], normal.dtype),
+                      jnp.array([0.0, 0.0, 1.0], normal.dtype))  # fmt: skip
+    t1 = jnp.cross(other, normal)
+    t1 = t1 / jnp.linalg.norm(t1)
+    return t1, jnp.cross(normal, t1)
+
+
+def convex_pair(type1: int, type2: int):
+    """The collision function of two convex geom types (see module doc): GJK on their cores and,
+    where the cores overlap, EPA. Signature as the driver's shaped functions: poses and sizes,
+    then each geom's mesh vertices (ignored unless a mesh) and the margin.
+
+    Where both shapes can rest on a face or an edge (boxes, meshes, cylinders, capsules), one
+    contact cannot hold a face up, so the pair also searches for more as MuJoCo's multi-contact
+    (multiccd) does: the two geoms turned by +-1e-3 rad in opposite senses about each tangent of
+    the first contact, around its point, and each contact found there, if distinct from those
+    before it, joins with the first's distance. MuJoCo 4.0's own search (for meshes and boxes)
+    clips the touching faces instead, so the extra points differ; the faces rest the same."""
+    epa_iterations = EPA_ITERATIONS_CURVED if {type1, type2} & set(_CURVED) else EPA_ITERATIONS
+    extra = contacts_per_pair(type1, type2) - 1
+
+    def contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2):
         support1 = lambda d: support(type1, pos1, mat1, size1, verts1, d)  # noqa: E731
         support2 = lambda d: support(type2, pos2, mat2, size2, verts2, d)  # noqa: E731
         dist, w1, w2, simplex, _ = gjk(support1, support2, pos1 - pos2, GJK_ITERATIONS)
@@ -282,7 +318,28 @@ def convex_pair(type1: int, type2: int):
         x1 = jnp.where(apart, w1, d1) + r1 * normal
         x2 = jnp.where(apart, w2, d2) - r2 * normal
         dist = jnp.where(apart, dist, -depth) - r1 - r2
-        del margin  # a candidate is active below the margin (the driver's mask)
-        return dist[None], (0.5 * (x1 + x2))[None], normal[None], jnp.zeros((1, 3), pos1.dtype)
+        return dist, 0.5 * (x1 + x2), normal
+
+    def collide(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, margin, rbound):
+        dist, pos, normal = contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2)
+        dists, poss, normals, kept = [dist], [pos], [normal], [jnp.array(True)]
+        if extra:
+            tolerance = _DISTINCT * rbound
+            for axis in _tangents(normal):
+                for angle in (-_PERTURBATION, _PERTURBATION):
+                    rot = _rotation(axis, angle)
+                    p1, m1 = pos + rot @ (pos1 - pos), rot @ mat1
+                    p2, m2 = pos + rot.T @ (pos2 - pos), rot.T @ mat2
+                    d, x, n = contact(p1, m1, size1, p2, m2, size2, verts1, verts2)
+                    apart = jnp.linalg.norm(jnp.stack(poss) - x, axis=-1) > tolerance
+                    found = (dist < margin) & (d < margin) & jnp.all(apart | ~jnp.stack(kept))
+                    dists.append(jnp.where(found, dist, _FAR_DIST))
+                    poss.append(x)
+                    normals.append(n)
+                    kept.append(found)
+        return jnp.stack(dists), jnp.stack(poss), jnp.stack(normals), jnp.zeros((len(dists), 3), pos1.dtype)
 
     return collide
+
+
+_FAR_DIST = 1e6  # as collision_primitive._FAR: a candidate not reported, beyond any margin
