@@ -599,12 +599,13 @@ def main() -> None:
     keep = QUICK_SCENES if args.quick and not args.scenes else args.scenes
     if keep:
         paths = {n: p for n, p in paths.items() if any(k in n for k in keep)}
+    version = _fastrl_version()  # the code this run imports, before anything can change it
     rows = run_scenes(paths, args)
     summary = summarize(rows)
     meta = {
         "date": datetime.date.today().isoformat(),
         "machine": f"{platform.machine()}, {jax.local_device_count()} {jax.default_backend()} device(s)",
-        "fastrl": _fastrl_version(),
+        "fastrl": version,
         "mujoco": mujoco.__version__,
         "jax": jax.__version__,
         "command": " ".join(["python experiments/robot_coverage.py", *sys.argv[1:]]),
