@@ -461,7 +461,12 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         "# Robot scene coverage: what fastrl loads, and how closely it tracks MuJoCo C",
         "",
         f"{meta['date']}, {meta['machine']}; fastrl {meta['fastrl']}; MuJoCo {meta['mujoco']}, "
-        f"JAX {meta['jax']}. Command: `{meta['command']}`.",
+        f"JAX {meta['jax']}. "
+        + (
+            f"Runs, each later one's rows replacing the earlier rows of its scenes: `{meta['command']}`."
+            if meta.get("merged")
+            else f"Command: `{meta['command']}`."
+        ),
         "",
         *(
             [
@@ -482,10 +487,16 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         f"float32 each step); {s['random_finite']} of "
         f"{s['loads']} stay finite over {meta['random_steps']} steps of random controls.",
         f"- Errors other than a refusal: {', '.join(s['errors']) or 'none'}.",
-        f"- Shortened to keep within {meta.get('budget') or 0:g} s of fastrl stepping per scene "
-        "(default and converged comparisons only, over the steps shown): "
-        + (", ".join(f"`{r.name}` ({r.shortened})" for r in rows if r.shortened) or "none")
-        + ".",
+        *(
+            [
+                f"- Shortened to keep within {meta.get('budget') or 0:g} s of fastrl stepping per scene "
+                "(default and converged comparisons only, over the steps shown): "
+                + ", ".join(f"`{r.name}` ({r.shortened})" for r in rows if r.shortened)
+                + "."
+            ]
+            if any(r.shortened for r in rows)
+            else []
+        ),
         f"- Scenes one missing feature away from loading: {len(s['one_feature_away'])}"
         + "".join(f"\n  - `{n}`: {f}" for n, f in s["one_feature_away"].items()),
         "",
@@ -589,7 +600,16 @@ def main() -> None:
         help="mesh and height-field geoms collide with nothing (to test the rest of a scene before "
         "mesh collisions exist); writes robot_coverage_meshes_off.*",
     )
+    parser.add_argument(
+        "--merge",
+        nargs="+",
+        type=pathlib.Path,
+        help="results JSONs of partial runs: their rows replace those of OUT/robot_coverage.json",
+    )
     args = parser.parse_args()
+    if args.merge:
+        merge(args.out / "robot_coverage.json", args.merge)
+        return
     if args.quick:  # as written and converged only: two compiles fewer
         args.seconds, args.random_steps, args.chunk, args.budget = 0.1, 40, 20, 0.0
         args.variants = [v for v in args.variants if v in ("default", "converged")]
@@ -601,7 +621,6 @@ def main() -> None:
         paths = {n: p for n, p in paths.items() if any(k in n for k in keep)}
     version = _fastrl_version()  # the code this run imports, before anything can change it
     rows = run_scenes(paths, args)
-    summary = summarize(rows)
     meta = {
         "date": datetime.date.today().isoformat(),
         "machine": f"{platform.machine()}, {jax.local_device_count()} {jax.default_backend()} device(s)",
@@ -618,11 +637,30 @@ def main() -> None:
     }
     stem = "robot_coverage_quick" if args.quick else "robot_coverage"
     stem += "_meshes_off" if args.meshes_off else ""
-    args.out.mkdir(parents=True, exist_ok=True)
+    _write(args.out, stem, rows, meta)
+
+
+def _write(out: pathlib.Path, stem: str, rows: list[SceneResult], meta: dict) -> None:
+    summary = summarize(rows)
+    out.mkdir(parents=True, exist_ok=True)
     result = {"meta": meta, "summary": summary, "rows": [dataclasses.asdict(r) for r in rows]}
-    (args.out / f"{stem}.json").write_text(json.dumps(result, indent=1))
-    (args.out / f"{stem}.md").write_text(markdown(rows, summary, meta))
+    (out / f"{stem}.json").write_text(json.dumps(result, indent=1))
+    (out / f"{stem}.md").write_text(markdown(rows, summary, meta))
     print(json.dumps({k: summary[k] for k in ("scenes", "loads", "tracks", "refused")}))
+
+
+def merge(base: pathlib.Path, parts: list[pathlib.Path]) -> None:
+    """Replaces the rows of ``base`` (a results JSON) with those of the later runs ``parts`` for the
+    scenes they ran, and rewrites ``base`` and its page; the page names every run it draws on."""
+    runs = [json.loads(p.read_text()) for p in (base, *parts)]
+    rows = {r["name"]: r for run in runs for r in run["rows"]}  # later runs win
+    meta = dict(runs[0]["meta"])
+    meta["fastrl"] = " / ".join(dict.fromkeys(run["meta"]["fastrl"] for run in runs))
+    meta["command"] = "`; `".join(run["meta"]["command"] for run in runs)
+    meta["merged"] = True
+    meta["budget"] = max(run["meta"].get("budget") or 0 for run in runs)
+    meta["date"] = runs[-1]["meta"]["date"]
+    _write(base.parent, base.stem, [SceneResult(**rows[n]) for n in sorted(rows)], meta)
 
 
 if __name__ == "__main__":
