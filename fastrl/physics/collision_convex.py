@@ -13,6 +13,7 @@ a candidate MuJoCo would not report gets ``dist = _FAR`` (beyond any margin, so 
   faces are triangles and quadrilaterals (``tests/physics/test_mesh_hfield.py``). On a face with
   more corners MuJoCo keeps fewer (a tilted 12-sided disc: two where this keeps four); the rule
   there is not known.
+- **Plane-ellipsoid**: the ellipsoid's deepest point, one contact (``mjc_PlaneConvex``).
 - **Height field-sphere** follows ``mjc_ConvexHField``: the field is a grid of triangular prisms
   (two per cell, from the cell's top surface down to the base), and each prism the sphere
   comes within the margin of gives one contact. MuJoCo's GJK shrinks the sphere to its centre and
@@ -72,6 +73,17 @@ def plane_mesh(p_pos, p_mat, p_size, m_pos, m_mat, m_size, verts, polymap, polyv
     dist = jnp.where(used, dist[pick], _FAR)
     pos = points[pick] - 0.5 * dist[:, None] * normal
     return dist, pos, jnp.tile(normal, (4, 1)), jnp.zeros((4, 3), normal.dtype)
+
+
+def plane_ellipsoid(p_pos, p_mat, p_size, e_pos, e_mat, e_size):
+    """One contact: the ellipsoid's point deepest below the plane (its support point along the
+    plane's inward normal), as ``mjc_PlaneConvex`` gives it for an ellipsoid."""
+    del p_size
+    normal = p_mat[:, 2]
+    scaled = e_size * (e_mat.T @ -normal)
+    point = e_pos + e_mat @ (e_size * scaled / jnp.maximum(jnp.linalg.norm(scaled), 1e-30))
+    dist = dot(normal, point - p_pos)
+    return dist[None], (point - 0.5 * dist * normal)[None], normal[None], jnp.zeros((1, 3), normal.dtype)
 
 
 def _closest_on_triangle(p, a, b, c):

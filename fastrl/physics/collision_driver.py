@@ -23,6 +23,7 @@ from fastrl.physics.types import Data, GeomType, Model
 PRIMITIVES = {
     (GeomType.PLANE, GeomType.SPHERE): (prim.plane_sphere, 1),
     (GeomType.PLANE, GeomType.CAPSULE): (prim.plane_capsule, 2),
+    (GeomType.PLANE, GeomType.ELLIPSOID): (convex.plane_ellipsoid, 1),
     (GeomType.PLANE, GeomType.CYLINDER): (prim.plane_cylinder, 4),
     (GeomType.PLANE, GeomType.BOX): (prim.plane_box, 4),
     (GeomType.SPHERE, GeomType.SPHERE): (prim.sphere_sphere, 1),
