@@ -33,8 +33,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fastrl.physics import collision_gjk as gjk
 from fastrl.physics.collision_primitive import _FAR, _normalize
 from fastrl.physics.math import cross, dot
+from fastrl.physics.types import GeomType
 
 
 def _spread(points, ok, normal):
@@ -279,3 +281,42 @@ def hfield_box(
     collide = functools.partial(_box_prism, local, rot, b_size)
     field = (heights, adr, nrow, ncol, hsize, rbound, margin, window)
     return _hfield(h_pos, h_mat, local, local - extent, local + extent, collide, *field)
+
+
+def hfield_convex(gtype: int):
+    """Height field against a capsule, cylinder, ellipsoid or mesh: each prism of the window as a
+    six-vertex hull against the geom by GJK/EPA (``collision_gjk``), one contact per prism, as
+    MuJoCo's ``mjc_ConvexHField`` runs its GJK/EPA on each prism."""
+    contact = gjk.single_contact(GeomType.MESH, gtype)
+
+    def collide(
+        h_pos,
+        h_mat,
+        h_size,
+        g_pos,
+        g_mat,
+        g_size,
+        verts,
+        heights,
+        adr,
+        nrow,
+        ncol,
+        hsize,
+        rbound,
+        margin,
+        *,
+        window,
+    ):
+        del h_size
+        local = h_mat.T @ (g_pos - h_pos)
+        rot = h_mat.T @ g_mat
+        support = lambda d: gjk.support(gtype, local, rot, g_size, verts, d)  # noqa: E731
+        radius = gjk.core_radius(gtype, g_size)
+        lo = jnp.stack([support(-e)[i] for i, e in enumerate(jnp.eye(3, dtype=local.dtype))]) - radius
+        hi = jnp.stack([support(e)[i] for i, e in enumerate(jnp.eye(3, dtype=local.dtype))]) + radius
+        eye, zero = jnp.eye(3, dtype=local.dtype), jnp.zeros(3, local.dtype)
+        prism_contact = lambda prism: contact(zero, eye, zero, local, rot, g_size, prism, verts)  # noqa: E731
+        field = (heights, adr, nrow, ncol, hsize, rbound, margin, window)
+        return _hfield(h_pos, h_mat, local, lo, hi, prism_contact, *field)
+
+    return collide

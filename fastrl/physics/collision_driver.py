@@ -42,6 +42,10 @@ SHAPED = {
     (GeomType.PLANE, GeomType.MESH): (convex.plane_mesh, 4),
     (GeomType.HFIELD, GeomType.SPHERE): (convex.hfield_sphere, None),
     (GeomType.HFIELD, GeomType.BOX): (convex.hfield_box, None),
+    **{
+        (GeomType.HFIELD, t): (convex.hfield_convex(t), None)
+        for t in (GeomType.CAPSULE, GeomType.ELLIPSOID, GeomType.CYLINDER, GeomType.MESH)
+    },
 }
 # Every other pair of convex geoms (meshes' hulls, cylinders against cylinders and boxes,
 # ellipsoids) goes through GJK/EPA: one contact per pair.
@@ -167,10 +171,15 @@ def _shape_args(m: Model, key: tuple[int, int], idx: np.ndarray) -> tuple[tuple,
         rbound = jnp.minimum(m.geom_rbound[g1], m.geom_rbound[g2])
         return (*verts, margin, rbound), (0, 0, 0, 0), {}
     hf = m.geom_hfieldid[g1]
+    if key[1] in (GeomType.SPHERE, GeomType.BOX):
+        shape, shape_axes = (), ()
+    else:  # GJK/EPA against each prism: the geom's mesh vertices (if a mesh)
+        verts = _mesh_args(m, g2)[0] if key[1] == GeomType.MESH else jnp.zeros((g2.size, 1, 3))
+        shape, shape_axes = (verts,), (0,)
     ints = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
     args = (m.hfield_data, ints(m.hfield_adr[hf]), ints(m.hfield_nrow[hf]), ints(m.hfield_ncol[hf]),
             m.hfield_size[hf], m.geom_rbound[g2], margin)  # fmt: skip
-    return args, (None, 0, 0, 0, 0, 0, 0), {"window": _window(m, idx)}
+    return (*shape, *args), (*shape_axes, None, 0, 0, 0, 0, 0, 0), {"window": _window(m, idx)}
 
 
 def make_frame(normal: jax.Array, tangent: jax.Array) -> jax.Array:

@@ -291,19 +291,11 @@ def _tangents(normal):
     return t1, jnp.cross(normal, t1)
 
 
-def convex_pair(type1: int, type2: int):
-    """The collision function of two convex geom types (see module doc): GJK on their cores and,
-    where the cores overlap, EPA. Signature as the driver's shaped functions: poses and sizes,
-    then each geom's mesh vertices (ignored unless a mesh) and the margin.
-
-    Where both shapes can rest on a face or an edge (boxes, meshes, cylinders, capsules), one
-    contact cannot hold a face up, so the pair also searches for more as MuJoCo's multi-contact
-    (multiccd) does: the two geoms turned by +-1e-3 rad in opposite senses about each tangent of
-    the first contact, around its point, and each contact found there, if distinct from those
-    before it, joins with the first's distance. MuJoCo 4.0's own search (for meshes and boxes)
-    clips the touching faces instead, so the extra points differ; the faces rest the same."""
+def single_contact(type1: int, type2: int):
+    """``contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2) -> (dist, pos, normal)``:
+    the one contact of two convex geoms by GJK on their cores and, where the cores overlap, EPA;
+    the normal from the first to the second."""
     epa_iterations = EPA_ITERATIONS_CURVED if {type1, type2} & set(_CURVED) else EPA_ITERATIONS
-    extra = contacts_per_pair(type1, type2) - 1
 
     def contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2):
         support1 = lambda d: support(type1, pos1, mat1, size1, verts1, d)  # noqa: E731
@@ -319,6 +311,23 @@ def convex_pair(type1: int, type2: int):
         x2 = jnp.where(apart, w2, d2) - r2 * normal
         dist = jnp.where(apart, dist, -depth) - r1 - r2
         return dist, 0.5 * (x1 + x2), normal
+
+    return contact
+
+
+def convex_pair(type1: int, type2: int):
+    """The collision function of two convex geom types (see module doc): GJK on their cores and,
+    where the cores overlap, EPA. Signature as the driver's shaped functions: poses and sizes,
+    then each geom's mesh vertices (ignored unless a mesh) and the margin.
+
+    Where both shapes can rest on a face or an edge (boxes, meshes, cylinders, capsules), one
+    contact cannot hold a face up, so the pair also searches for more as MuJoCo's multi-contact
+    (multiccd) does: the two geoms turned by +-1e-3 rad in opposite senses about each tangent of
+    the first contact, around its point, and each contact found there, if distinct from those
+    before it, joins with the first's distance. MuJoCo 4.0's own search (for meshes and boxes)
+    clips the touching faces instead, so the extra points differ; the faces rest the same."""
+    extra = contacts_per_pair(type1, type2) - 1
+    contact = single_contact(type1, type2)
 
     def collide(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, margin, rbound):
         dist, pos, normal = contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2)
