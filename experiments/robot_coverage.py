@@ -668,7 +668,10 @@ def merge(base: pathlib.Path, parts: list[pathlib.Path]) -> None:
     meta["fastrl"] = " / ".join(dict.fromkeys(run["meta"]["fastrl"] for run in runs))
     meta["command"] = "`; `".join(run["meta"]["command"] for run in runs)
     meta["merged"] = True
-    meta["budget"] = max(run["meta"].get("budget") or 0 for run in runs)
+    shortening = [
+        run["meta"].get("budget") or 0 for run in runs if any(r.get("shortened") for r in run["rows"])
+    ]
+    meta["budget"] = max(shortening, default=0)
     meta["date"] = runs[-1]["meta"]["date"]
     _write(base.parent, base.stem, [SceneResult(**rows[n]) for n in sorted(rows)], meta)
 
