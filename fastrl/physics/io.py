@@ -533,8 +533,7 @@ def model_from_mujoco(
     g2 = np.array([p[1] for p in pairs], np.int32)
     geometry = _geometry_fields(m, pairs)
     if nconmax is None:
-        slots = _default_slots(m, pairs, geometry["pair_window"])
-        nconmax = m.nconmax if m.nconmax > 0 else slots
+        nconmax = m.nconmax if m.nconmax > 0 else _default_slots(m, pairs, geometry["pair_window"])
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
     eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731

@@ -53,14 +53,6 @@ def test_public_api_shapes():
         ),
         (
             BASE.format(
-                body='<geom name="floor" type="plane" size="1 1 1"/>'
-                '<body><freejoint/><geom name="egg" type="ellipsoid" size="0.1 0.1 0.2"/></body>',
-                extra="",
-            ),
-            ["collision plane-ellipsoid", "'floor'", "'egg'"],
-        ),
-        (
-            BASE.format(
                 body='<geom type="plane" size="1 1 1"/>'
                 '<body><freejoint/><geom size="0.1" condim="6"/></body>',
                 extra='<option cone="elliptic" noslip_iterations="3"/>',
