@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fastrl.physics.collision_primitive import _FAR
 from fastrl.physics.math import dot
 from fastrl.physics.types import GeomType
 
@@ -342,13 +343,10 @@ def convex_pair(type1: int, type2: int):
                     d, x, n = contact(p1, m1, size1, p2, m2, size2, verts1, verts2)
                     apart = jnp.linalg.norm(jnp.stack(poss) - x, axis=-1) > tolerance
                     found = (dist < margin) & (d < margin) & jnp.all(apart | ~jnp.stack(kept))
-                    dists.append(jnp.where(found, dist, _FAR_DIST))
+                    dists.append(jnp.where(found, dist, _FAR))
                     poss.append(x)
                     normals.append(n)
                     kept.append(found)
         return jnp.stack(dists), jnp.stack(poss), jnp.stack(normals), jnp.zeros((len(dists), 3), pos1.dtype)
 
     return collide
-
-
-_FAR_DIST = 1e6  # as collision_primitive._FAR: a candidate not reported, beyond any margin
