@@ -581,7 +581,9 @@ def main() -> None:
     parser.add_argument(
         "--quick", action="store_true", help="2 scenes, 0.1 s, 40 random steps, 2 comparisons, for CI"
     )
-    parser.add_argument("--scenes", nargs="*", help="only scenes whose name contains one of these")
+    parser.add_argument(
+        "--scenes", nargs="*", help="only scenes whose name contains one of these (ending in $: is it)"
+    )
     parser.add_argument("--seconds", type=float, default=2.0, help="tracking horizon (simulated s)")
     parser.add_argument("--random-steps", type=int, default=1000)
     parser.add_argument(
@@ -628,7 +630,9 @@ def main() -> None:
     paths = robot_scenes.scene_paths()
     keep = QUICK_SCENES if args.quick and not args.scenes else args.scenes
     if keep:
-        paths = {n: p for n, p in paths.items() if any(k in n for k in keep)}
+        paths = {
+            n: p for n, p in paths.items() if any(n == k[:-1] if k.endswith("$") else k in n for k in keep)
+        }
     version = _fastrl_version()  # the code this run imports, before anything can change it
     rows = run_scenes(paths, args)
     meta = {

@@ -13,8 +13,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fastrl.physics import collision_box as box
 from fastrl.physics import collision_convex as convex
 from fastrl.physics import collision_gjk as gjk
+from fastrl.physics import collision_manifold as manifold
 from fastrl.physics import collision_primitive as prim
 from fastrl.physics.math import cross, dot
 from fastrl.physics.types import Data, GeomType, Model
@@ -33,12 +35,13 @@ PRIMITIVES = {
     (GeomType.CAPSULE, GeomType.CAPSULE): (prim.capsule_capsule, 1),
     (GeomType.CAPSULE, GeomType.CYLINDER): (prim.capsule_cylinder, 1),
     (GeomType.CAPSULE, GeomType.BOX): (prim.capsule_box, 3),
-    (GeomType.BOX, GeomType.BOX): (prim.box_box, 16),
 }
 
-# Pairs with a mesh or height field: their functions also take the shape's data (``_shape_args``).
+# Pairs with a mesh or height field, and box-box: their functions also take the shape's data and
+# the pair's margin (``_shape_args``).
 # A height-field pair's candidate count is two per cell of its window (None here).
 SHAPED = {
+    (GeomType.BOX, GeomType.BOX): (box.box_box, box.CONTACTS),
     (GeomType.PLANE, GeomType.MESH): (convex.plane_mesh, 4),
     (GeomType.HFIELD, GeomType.SPHERE): (convex.hfield_sphere, None),
     (GeomType.HFIELD, GeomType.BOX): (convex.hfield_box, None),
@@ -57,8 +60,19 @@ _CONVEX = (
     GeomType.BOX,
     GeomType.MESH,
 )
-GJK_PAIRS = {(t1, t2) for t1 in _CONVEX for t2 in _CONVEX if t1 <= t2 and (t1, t2) not in PRIMITIVES}
+GJK_PAIRS = {
+    (t1, t2)
+    for t1 in _CONVEX
+    for t2 in _CONVEX
+    if t1 <= t2 and (t1, t2) not in PRIMITIVES and (t1, t2) not in SHAPED
+}
 SHAPED.update({key: (gjk.convex_pair(*key), gjk.contacts_per_pair(*key)) for key in sorted(GJK_PAIRS)})
+# Meshes against meshes and boxes with no margin (``Model.pair_faceclip``): MuJoCo's face-clipping
+# multi-contact instead of the perturbation search; keyed by the type pair and ``FACES``.
+FACES = "faces"
+FACE_CLIPPED = {(GeomType.BOX, GeomType.MESH, FACES), (GeomType.MESH, GeomType.MESH, FACES)}
+SHAPED.update({key: (manifold.faces_pair(*key[:2]), manifold.CONTACTS) for key in sorted(FACE_CLIPPED)})
+GJK_PAIRS |= FACE_CLIPPED
 SUPPORTED = {**PRIMITIVES, **SHAPED}
 
 
@@ -74,7 +88,11 @@ def pair_groups(m: Model) -> list[tuple[tuple[int, int], np.ndarray]]:
     t1, t2 = m.geom_type[m.pair_geom1], m.geom_type[m.pair_geom2]
     groups = []
     for key in SUPPORTED:
-        idx = np.flatnonzero((t1 == key[0]) & (t2 == key[1]))
+        clipped = key in FACE_CLIPPED
+        if key[:2] + (FACES,) in FACE_CLIPPED or clipped:  # split by Model.pair_faceclip
+            idx = np.flatnonzero((t1 == key[0]) & (t2 == key[1]) & (m.pair_faceclip == clipped))
+        else:
+            idx = np.flatnonzero((t1 == key[0]) & (t2 == key[1]))
         if not idx.size:
             continue
         if GeomType.MESH in key:
@@ -93,18 +111,33 @@ def gjk_slots(n: int) -> int:
     return min(n, max(32, -(-n // 4)))
 
 
-def _cull(m: Model, d: Data, idx: np.ndarray, fn, args, axes):
-    """``fn`` vmapped over the ``gjk_slots`` pairs of group ``idx`` whose bounding spheres overlap
-    most; the rest, and any whose spheres do not overlap, get no contact (``_FAR``)."""
+def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes: tuple):
+    """A GJK/EPA group's contacts, in three stages, each pair's result as if solved alone:
+
+    1. bounding spheres: the ``gjk_slots`` pairs whose spheres (grown by the margin) overlap most
+       are kept; the rest, and any whose spheres do not overlap, get no contact (``_FAR``);
+    2. GJK's separation of each kept pair: a pair at least its margin apart gets no contact;
+    3. EPA and the multi-contact search for the kept pairs, only when some pair is within its
+       margin (``lax.cond``: one env skips the stage, a vmapped batch runs it if any env needs it).
+    """
     g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
     reach = m.geom_rbound[g1] + m.geom_rbound[g2] + m.pair_margin[idx]
     overlap = reach - jnp.linalg.norm(d.geom_xpos[g1] - d.geom_xpos[g2], axis=-1)
     k = gjk_slots(idx.size)
     if k < idx.size:
         overlap, chosen = jax.lax.top_k(overlap, k)
-        args = tuple(a if ax is None else a[chosen] for a, ax in zip(args, axes, strict=True))
-    dist, pos, normal, tangent = jax.vmap(fn, axes)(*args)
-    dist = jnp.where(overlap[:, None] >= 0, dist, prim._FAR)
+        take = lambda a: jax.tree.map(lambda x: x[chosen], a)  # noqa: E731
+        args = tuple(a if ax is None else take(a) for a, ax in zip(args, axes, strict=True))
+    margin = args[-2]  # the shaped GJK arguments end with the margin and the smaller rbound
+    verts = [a[0] if isinstance(a, tuple) else a for a in args[6:8]]  # face-clipped: hull tuples
+    sep = jax.vmap(gjk.separation(*key[:2]), (0,) * 8)(*args[:6], *verts)
+    near = (overlap >= 0) & (sep < margin)
+    count = candidates_per_pair(m, key, idx)
+    zeros = jnp.zeros((k, count, 3), sep.dtype)
+    far = (jnp.full((k, count), prim._FAR, sep.dtype), zeros, zeros.at[..., 2].set(1.0), zeros)
+    solve = lambda a: jax.vmap(fn, axes)(*a)  # noqa: E731
+    dist, pos, normal, tangent = jax.lax.cond(jnp.any(near), solve, lambda a: far, args)
+    dist = jnp.where(near[:, None], dist, prim._FAR)
     if k < idx.size:
         full = lambda x, fill: jnp.full((idx.size,) + x.shape[1:], fill, x.dtype).at[chosen].set(x)  # noqa: E731
         dist, pos, normal, tangent = (
@@ -137,10 +170,19 @@ def contact_layout(m: Model) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0, np.int64)
 
 
+def _mesh_verts(m: Model, g: np.ndarray) -> jax.Array:
+    """Each geom's hull vertices (n, V, 3), padded to the group's largest with copies of vertex 0
+    (which change no support point)."""
+    mesh = m.geom_meshid[g]
+    k = np.arange(m.mesh_vertnum[mesh].max())
+    real = k[None, :] < m.mesh_vertnum[mesh][:, None]
+    return m.mesh_vert[m.mesh_vertadr[mesh][:, None] + np.where(real, k[None, :], 0)]
+
+
 def _mesh_args(m: Model, g: np.ndarray) -> tuple[jax.Array, ...]:
-    """Each geom's mesh, padded to the group's largest (with copies of vertex 0, which change no
-    support point, and -1 ids): vertices (n, V, 3), each vertex's polygons (n, V, M), each
-    polygon's vertices (n, P, K) and normals (n, P, 3)."""
+    """Each geom's mesh, padded to the group's largest (with copies of vertex 0 and -1 ids):
+    vertices (n, V, 3), each vertex's polygons (n, V, M), each polygon's vertices (n, P, K) and
+    normals (n, P, 3)."""
     mesh = m.geom_meshid[g]
 
     def rows(adr, num):
@@ -154,18 +196,32 @@ def _mesh_args(m: Model, g: np.ndarray) -> tuple[jax.Array, ...]:
     polymap = np.where(vreal[..., None], m.mesh_polymap[vrows], -1)
     polyvert = np.where(preal[..., None], m.mesh_polyvert[prows], -1)
     normals = jnp.where(jnp.asarray(preal)[..., None], m.mesh_polynormal[prows], 0.0)
-    return m.mesh_vert[vrows], jnp.asarray(polymap), jnp.asarray(polyvert), normals
+    return _mesh_verts(m, g), jnp.asarray(polymap), jnp.asarray(polyvert), normals
 
 
 def _shape_args(m: Model, key: tuple[int, int], idx: np.ndarray) -> tuple[tuple, tuple, dict]:
     """Extra arguments of a ``SHAPED`` function, their vmap axes, and static keywords."""
     g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
     margin = m.pair_margin[idx]
+    if key == (GeomType.BOX, GeomType.BOX):
+        return (margin,), (0,), {}
     if key == (GeomType.PLANE, GeomType.MESH):
         return (*_mesh_args(m, g2), margin), (0,) * 5, {}
+    if key in FACE_CLIPPED:  # each side's hull and its rows in the shared polygon tables
+        ints = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
+        hulls = []
+        for g, t in ((g1, key[0]), (g2, key[1])):
+            if t == GeomType.MESH:
+                mesh = m.geom_meshid[g]
+                hulls.append((_mesh_verts(m, g), ints(m.mesh_vertadr[mesh]), ints(m.mesh_polyadr[mesh])))
+            else:
+                hulls.append((jnp.zeros((g.size, 1, 3)), ints(np.zeros(g.size)), ints(np.zeros(g.size))))
+        rbound = jnp.minimum(m.geom_rbound[g1], m.geom_rbound[g2])
+        tables = (jnp.asarray(m.mesh_polymap), jnp.asarray(m.mesh_polyvert), m.mesh_polynormal)
+        return (*hulls, margin, rbound), (0, 0, 0, 0), {"tables": tables}
     if key[0] != GeomType.HFIELD:  # GJK/EPA: each side's mesh vertices (if a mesh)
         verts = [
-            _mesh_args(m, g)[0] if t == GeomType.MESH else jnp.zeros((g.size, 1, 3))
+            _mesh_verts(m, g) if t == GeomType.MESH else jnp.zeros((g.size, 1, 3))
             for g, t in ((g1, key[0]), (g2, key[1]))
         ]
         rbound = jnp.minimum(m.geom_rbound[g1], m.geom_rbound[g2])
@@ -174,7 +230,7 @@ def _shape_args(m: Model, key: tuple[int, int], idx: np.ndarray) -> tuple[tuple,
     if key[1] in (GeomType.SPHERE, GeomType.BOX):
         shape, shape_axes = (), ()
     else:  # GJK/EPA against each prism: the geom's mesh vertices (if a mesh)
-        verts = _mesh_args(m, g2)[0] if key[1] == GeomType.MESH else jnp.zeros((g2.size, 1, 3))
+        verts = _mesh_verts(m, g2) if key[1] == GeomType.MESH else jnp.zeros((g2.size, 1, 3))
         shape, shape_axes = (verts,), (0,)
     ints = lambda x: jnp.asarray(x, jnp.int32)  # noqa: E731
     args = (m.hfield_data, ints(m.hfield_adr[hf]), ints(m.hfield_nrow[hf]), ints(m.hfield_ncol[hf]),
@@ -210,8 +266,8 @@ def collision(m: Model, d: Data) -> Data:
                  d.geom_xpos[g2], d.geom_xmat[g2], m.geom_size[g2])  # fmt: skip
         extra, axes, static = _shape_args(m, key, idx) if key in SHAPED else ((), (), {})
         fn = functools.partial(fn, **static) if static else fn
-        if key in GJK_PAIRS:  # bounding spheres first
-            dist, pos, normal, tangent = _cull(m, d, idx, fn, (*poses, *extra), (0,) * 6 + axes)
+        if key in GJK_PAIRS:  # bounding spheres and GJK first
+            dist, pos, normal, tangent = _cull(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
         else:
             dist, pos, normal, tangent = jax.vmap(fn, (0,) * 6 + axes)(*poses, *extra)
         dists.append(dist.reshape(-1))

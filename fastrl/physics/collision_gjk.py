@@ -36,13 +36,21 @@ _FACE_COUNT = np.array([len(c) for c in _COMBOS])
 def support(gtype: int, pos, mat, size, verts, direction):
     """The point of geom ``gtype`` (world pose ``pos``, ``mat``) farthest along ``direction``;
     spheres and capsules by their core (radius left out). ``verts``: a mesh's vertices (local)."""
+    return support_vertex(gtype, pos, mat, size, verts, direction)[0]
+
+
+def support_vertex(gtype: int, pos, mat, size, verts, direction):
+    """``support`` and the vertex it is: a mesh's vertex id, a box's corner as MuJoCo numbers
+    them (bit 1, 2, 4 set where the corner lies on the +x, +y, +z side), 0 for other geoms."""
     local = mat.T @ direction
+    index = jnp.zeros((), jnp.int32)
     if gtype == GeomType.SPHERE:
         point = jnp.zeros(3, pos.dtype)
     elif gtype == GeomType.CAPSULE:
         point = jnp.array([0.0, 0.0, 1.0], pos.dtype) * jnp.where(local[2] >= 0, size[1], -size[1])
     elif gtype == GeomType.BOX:
         point = jnp.where(local >= 0, size, -size)
+        index = jnp.sum(jnp.where(local >= 0, jnp.array([1, 2, 4], jnp.int32), 0)).astype(jnp.int32)
     elif gtype == GeomType.CYLINDER:
         radial = local.at[2].set(0.0)
         norm = jnp.linalg.norm(radial)
@@ -52,10 +60,11 @@ def support(gtype: int, pos, mat, size, verts, direction):
         scaled = size * local
         point = size * scaled / jnp.maximum(jnp.linalg.norm(scaled), 1e-30)
     elif gtype == GeomType.MESH:
-        point = verts[jnp.argmax(verts @ local)]
+        index = jnp.argmax(verts @ local).astype(jnp.int32)
+        point = verts[index]
     else:
         raise ValueError(f"no support function for geom type {gtype}")
-    return pos + mat @ point
+    return pos + mat @ point, index
 
 
 def core_radius(gtype: int, size):
@@ -114,19 +123,20 @@ def gjk(support_a, support_b, start, iterations: int):
 
     Returns ``(dist, witness_a, witness_b, simplex, used)``: ``dist`` 0 when the origin lies in
     ``A - B`` (overlap), else the distance between the witness points; the final simplex (points
-    of ``A - B``, with their A and B halves) seeds EPA.
+    of ``A - B``, with their A and B halves and those halves' vertex ids) seeds EPA. Support
+    functions return ``(point, vertex id)``.
     """
     dtype = start.dtype
-    zero3 = jnp.zeros((4, 3), dtype)
-    a0, b0 = support_a(-start), support_b(start)
+    zero3, zero = jnp.zeros((4, 3), dtype), jnp.zeros(4, jnp.int32)
+    (a0, i0), (b0, j0) = support_a(-start), support_b(start)
     first = jnp.array([True, False, False, False])
-    state = (zero3.at[0].set(a0 - b0), zero3.at[0].set(a0), zero3.at[0].set(b0),
-             first, first.astype(dtype), jnp.array(False))  # fmt: skip
+    state = (zero3.at[0].set(a0 - b0), zero3.at[0].set(a0), zero3.at[0].set(b0), zero.at[0].set(i0),
+             zero.at[0].set(j0), first, first.astype(dtype), jnp.array(False))  # fmt: skip
 
     def step(_, state):
-        points, sa, sb, used, weights, done = state
+        points, sa, sb, ia, ib, used, weights, done = state
         x = weights @ points
-        a, b = support_a(-x), support_b(x)
+        (a, i), (b, j) = support_a(-x), support_b(x)
         w = a - b
         gap = dot(x, x) - dot(x, w)
         converged = gap <= 1e-12 * jnp.maximum(dot(x, x), 1e-30)
@@ -138,13 +148,14 @@ def gjk(support_a, support_b, start, iterations: int):
         new_used = new_weights > 0
         keep = lambda new, old: jnp.where(done, old, new)  # noqa: E731
         return (keep(new_points, points), keep(sa.at[slot].set(a), sa), keep(sb.at[slot].set(b), sb),
+                keep(ia.at[slot].set(i), ia), keep(ib.at[slot].set(j), ib),
                 keep(new_used, used), keep(new_weights, weights), done)  # fmt: skip
 
-    points, sa, sb, used, weights, _ = jax.lax.fori_loop(0, iterations, step, state)
+    points, sa, sb, ia, ib, used, weights, _ = jax.lax.fori_loop(0, iterations, step, state)
     x = weights @ points
     dist = jnp.linalg.norm(x)
     inside = (jnp.sum(used) == 4) | (dist < 1e-15)
-    return jnp.where(inside, 0.0, dist), weights @ sa, weights @ sb, (points, sa, sb), used
+    return jnp.where(inside, 0.0, dist), weights @ sa, weights @ sb, (points, sa, sb, ia, ib), used
 
 
 def _face_plane(v, faces):
@@ -158,8 +169,9 @@ def _face_plane(v, faces):
 
 def epa(support_a, support_b, simplex, iterations: int):
     """Penetration of overlapping shapes from GJK's enclosing tetrahedron: ``(depth, normal,
-    witness_a, witness_b)``, the normal pointing from A to B (moving B by ``depth * normal``
-    separates them).
+    witness_a, witness_b, face)``, the normal pointing from A to B (moving B by ``depth * normal``
+    separates them); ``face``: the final nearest face's three points on A and on B (3, 3) and
+    their vertex ids (3,), for the multi-contact search.
 
     The polytope lives in fixed buffers: ``4 + iterations`` vertices and ``4 + 3 * iterations``
     face slots, each face with its three neighbours (across each edge). Each step takes the face
@@ -168,12 +180,14 @@ def epa(support_a, support_b, simplex, iterations: int):
     neighbour is unseen), reusing the dropped faces' slots. Every step costs the same, linear in
     the number of faces.
     """
-    points, sa, sb = simplex
+    points, sa, sb, sia, sib = simplex
     dtype = points.dtype
     nv, nf = 4 + iterations, 4 + 3 * iterations
     v = jnp.zeros((nv, 3), dtype).at[:4].set(points)
     va = jnp.zeros((nv, 3), dtype).at[:4].set(sa)
     vb = jnp.zeros((nv, 3), dtype).at[:4].set(sb)
+    ia = jnp.zeros(nv, jnp.int32).at[:4].set(sia)
+    ib = jnp.zeros(nv, jnp.int32).at[:4].set(sib)
     # The tetrahedron, faces outward whichever way its points wind (a mirror image swaps two).
     n0, d0 = _face_plane(points, jnp.asarray([[0, 1, 2]]))
     mirrored = jnp.sum(n0[0] * points[3]) > d0[0]
@@ -185,10 +199,10 @@ def epa(support_a, support_b, simplex, iterations: int):
     nxt = jnp.asarray([1, 2, 0])
 
     def step(k, state):
-        v, va, vb, faces, adj, alive, done = state
+        v, va, vb, ia, ib, faces, adj, alive, done = state
         n, dist = _face_plane(v, faces)
         best = jnp.argmin(jnp.where(alive, dist, jnp.inf))
-        a, b = support_a(n[best]), support_b(-n[best])
+        (a, i), (b, j) = support_a(n[best]), support_b(-n[best])
         w = a - b
         done = done | (dot(n[best], w) - dist[best] <= 1e-12 * (1.0 + dist[best]))
         seen = alive & (jnp.sum(n * (w - v[faces[:, 0]]), axis=-1) > 1e-14)
@@ -215,15 +229,17 @@ def epa(support_a, support_b, simplex, iterations: int):
         alive2 = (alive & ~seen).at[target].set(True, mode="drop")
         keep = lambda new, old: jnp.where(done, old, new)  # noqa: E731
         return (keep(v.at[new].set(w), v), keep(va.at[new].set(a), va), keep(vb.at[new].set(b), vb),
+                keep(ia.at[new].set(i), ia), keep(ib.at[new].set(j), ib),
                 keep(faces2, faces), keep(adj2, adj), keep(alive2, alive), done)  # fmt: skip
 
-    state = (v, va, vb, faces, adj, alive, jnp.array(False))
-    v, va, vb, faces, _, alive, _ = jax.lax.fori_loop(0, iterations, step, state)
+    state = (v, va, vb, ia, ib, faces, adj, alive, jnp.array(False))
+    v, va, vb, ia, ib, faces, _, alive, _ = jax.lax.fori_loop(0, iterations, step, state)
     n, dist = _face_plane(v, faces)
     best = jnp.argmin(jnp.where(alive, dist, jnp.inf))
     tri = faces[best]
     weights = _triangle_weights(v[tri], dist[best] * n[best])
-    return dist[best], n[best], weights @ va[tri], weights @ vb[tri]
+    face = (va[tri], vb[tri], ia[tri], ib[tri])
+    return dist[best], n[best], weights @ va[tri], weights @ vb[tri], face
 
 
 def _tetrahedron_adjacency(faces: np.ndarray) -> np.ndarray:
@@ -299,10 +315,10 @@ def single_contact(type1: int, type2: int):
     epa_iterations = EPA_ITERATIONS_CURVED if {type1, type2} & set(_CURVED) else EPA_ITERATIONS
 
     def contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2):
-        support1 = lambda d: support(type1, pos1, mat1, size1, verts1, d)  # noqa: E731
-        support2 = lambda d: support(type2, pos2, mat2, size2, verts2, d)  # noqa: E731
+        support1 = lambda d: support_vertex(type1, pos1, mat1, size1, verts1, d)  # noqa: E731
+        support2 = lambda d: support_vertex(type2, pos2, mat2, size2, verts2, d)  # noqa: E731
         dist, w1, w2, simplex, _ = gjk(support1, support2, pos1 - pos2, GJK_ITERATIONS)
-        depth, n_deep, d1, d2 = epa(support1, support2, simplex, epa_iterations)
+        depth, n_deep, d1, d2, _ = epa(support1, support2, simplex, epa_iterations)
         apart = dist > 0
         gap = w2 - w1
         n_apart = gap / jnp.where(apart, jnp.linalg.norm(gap), 1.0)
@@ -316,6 +332,21 @@ def single_contact(type1: int, type2: int):
     return contact
 
 
+def separation(type1: int, type2: int):
+    """``separation(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2) -> dist``: GJK alone:
+    the distance ``convex_pair``'s first contact reports when the cores are apart, minus infinity
+    when they overlap. A pair whose separation is at least its margin gets no contact, so the
+    driver runs EPA and the multi-contact search only when some pair is closer."""
+
+    def dist(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2):
+        support1 = lambda d: support_vertex(type1, pos1, mat1, size1, verts1, d)  # noqa: E731
+        support2 = lambda d: support_vertex(type2, pos2, mat2, size2, verts2, d)  # noqa: E731
+        gap = gjk(support1, support2, pos1 - pos2, GJK_ITERATIONS)[0]
+        return jnp.where(gap > 0, gap - core_radius(type1, size1) - core_radius(type2, size2), -jnp.inf)
+
+    return dist
+
+
 def convex_pair(type1: int, type2: int):
     """The collision function of two convex geom types (see module doc): GJK on their cores and,
     where the cores overlap, EPA. Signature as the driver's shaped functions: poses and sizes,
@@ -325,8 +356,9 @@ def convex_pair(type1: int, type2: int):
     contact cannot hold a face up, so the pair also searches for more as MuJoCo's multi-contact
     (multiccd) does: the two geoms turned by +-1e-3 rad in opposite senses about each tangent of
     the first contact, around its point, and each contact found there, if distinct from those
-    before it, joins with the first's distance. MuJoCo 4.0's own search (for meshes and boxes)
-    clips the touching faces instead, so the extra points differ; the faces rest the same."""
+    before it, joins with the first's distance. MuJoCo searches this way for pairs with a
+    margin and for capsules and cylinders; a mesh against a mesh or box with no margin clips the
+    touching faces instead (``collision_manifold``)."""
     extra = contacts_per_pair(type1, type2) - 1
     contact = single_contact(type1, type2)
 

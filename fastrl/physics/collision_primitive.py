@@ -461,26 +461,3 @@ def capsule_box(c_pos, c_mat, c_size, b_pos, b_mat, b_size):
     )
     dist = dist.at[2].set(jnp.where(repeats, _FAR, dist[2]))
     return dist, pos, normal, tangent
-
-
-def box_box(pos1, mat1, size1, pos2, mat2, size2):
-    """Sixteen contacts: every corner of each box against the other box (point-box, as
-    ``sphere_box`` with radius 0), the normal always from box 1 to box 2.
-
-    This covers a face or edge resting on a face (its corners, the contacts MuJoCo's mjc_BoxBox
-    clips to when one face lies within the other) and a corner pressed into a face. Two edges
-    crossing with no corner inside the other box give no contact until a corner enters, where
-    MuJoCo's edge-edge test gives one; scenes here rest boxes face to face.
-    """
-    corners = jnp.asarray(_BOX_CORNERS, size1.dtype)
-    zero = jnp.zeros(1, size1.dtype)
-
-    def against(c_pos, c_mat, c_size, o_pos, o_mat, o_size):
-        pts = c_pos + (corners * c_size) @ c_mat.T
-        out = jax.vmap(lambda p: sphere_box(p, c_mat, zero, o_pos, o_mat, o_size))(pts)
-        return tuple(x[:, 0] for x in out)
-
-    d1, p1, n1, t1 = against(pos1, mat1, size1, pos2, mat2, size2)
-    d2, p2, n2, t2 = against(pos2, mat2, size2, pos1, mat1, size1)
-    cat = lambda x, y: jnp.concatenate([x, y])  # noqa: E731
-    return cat(d1, d2), cat(p1, p2), cat(n1, -n2), cat(t1, t2)

@@ -22,9 +22,11 @@ def _collision(m: Model) -> str:
     """Each geom-type pair's method and candidate contacts per pair."""
     parts: dict[str, list[int]] = {}
     for key, idx in collision_driver.pair_groups(m):
-        name = "-".join(GeomType(t).name.lower() for t in key)
+        name = "-".join(GeomType(t).name.lower() for t in key[:2])
         each = collision_driver.candidates_per_pair(m, key, idx)
-        if key in collision_driver.GJK_PAIRS:
+        if key in collision_driver.FACE_CLIPPED:
+            how = f"GJK/EPA and face clipping, {each} each"
+        elif key in collision_driver.GJK_PAIRS:
             how = f"GJK/EPA, {each} each"
         elif GeomType.HFIELD in key:
             rows, cols = (int(w) for w in m.pair_window[idx].max(axis=0))

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics.collision_driver import SUPPORTED
+from fastrl.physics.collision_driver import FACES, SUPPORTED
 from fastrl.physics.constraint import contact_slots, default_nconmax
 from fastrl.physics.constraint import sizes as constraint_sizes
 from fastrl.physics.types import Data, GeomType, Integrator, JointType, Model
@@ -422,10 +422,21 @@ def _tendon_fields(m: mujoco.MjModel) -> dict:
     )  # fmt: skip
 
 
+def _hull_vertices(m: mujoco.MjModel, mesh: int) -> np.ndarray:
+    """Mesh-local ids, ascending, of the vertices of the convex hull MuJoCo's compiler built (its
+    ``mesh_graph``: vertex count, face count, each vertex's edge address, then its mesh id), so
+    that ``maxhullvert`` holds and no interior vertex is searched; every vertex without a hull."""
+    adr = m.mesh_graphadr[mesh]
+    if adr < 0:
+        return np.arange(m.mesh_vertnum[mesh])
+    num = int(m.mesh_graph[adr])
+    return np.sort(m.mesh_graph[adr + 2 + num : adr + 2 + 2 * num]).astype(np.int64)
+
+
 def _geometry_fields(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict:
     """``Model``'s mesh and height-field fields, for the geoms of the colliding pairs only.
 
-    Meshes: the vertices and the convex hull's polygons MuJoCo's compiler built (``mesh_poly*``):
+    Meshes: the convex hull's vertices and polygons MuJoCo's compiler built (``mesh_poly*``):
     each vertex's polygons, each polygon's vertices (-1 padded) and normal. Height fields: elevation
     data (0..1, scaled by ``hfield_size[2]``) and the cell window examined around each geom.
     """
@@ -435,17 +446,20 @@ def _geometry_fields(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict:
     geom_meshid = np.full(m.ngeom, -1, np.int32)
     verts, maps, polys, normals, vadr, vnum, padr = [], [], [], [], [], [], []
     for k, mid in enumerate(meshes):
-        v0, nv, p0, npoly = m.mesh_vertadr[mid], m.mesh_vertnum[mid], m.mesh_polyadr[mid], m.mesh_polynum[mid]
+        v0, p0, npoly = m.mesh_vertadr[mid], m.mesh_polyadr[mid], m.mesh_polynum[mid]
+        hull = _hull_vertices(m, mid)
+        local = np.full(m.mesh_vertnum[mid], -1, np.int64)
+        local[hull] = np.arange(hull.size)
         vadr.append(sum(vnum))
-        vnum.append(nv)
+        vnum.append(hull.size)
         padr.append(len(polys))
-        verts.append(m.mesh_vert[v0 : v0 + nv])
-        for v in range(nv):  # the polygons each vertex lies on (mesh-local polygon ids)
+        verts.append(m.mesh_vert[v0 + hull])
+        for v in hull:  # the polygons each vertex lies on (mesh-local polygon ids)
             a, n = m.mesh_polymapadr[v0 + v], m.mesh_polymapnum[v0 + v]
             maps.append(m.mesh_polymap[a : a + n])
-        for q in range(p0, p0 + npoly):  # each polygon's vertices (mesh-local vertex ids)
+        for q in range(p0, p0 + npoly):  # each polygon's vertices (hull-local vertex ids)
             a, n = m.mesh_polyvertadr[q], m.mesh_polyvertnum[q]
-            polys.append(m.mesh_polyvert[a : a + n])
+            polys.append(local[m.mesh_polyvert[a : a + n]])
         normals.append(m.mesh_polynormal[p0 : p0 + npoly].reshape(-1, 3))
         geom_meshid[[g for g in mesh_geoms if m.geom_dataid[g] == mid]] = k
 
@@ -494,15 +508,27 @@ def _geometry_fields(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict:
     )  # fmt: skip
 
 
-def _default_slots(m: mujoco.MjModel, pairs: list[tuple[int, int]], window: np.ndarray) -> int:
+def _faceclip(m: mujoco.MjModel, g1: np.ndarray, g2: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """Pairs MuJoCo gives its face-clipping multi-contact: a mesh against a mesh or a box, with
+    no margin (with a margin it searches by perturbation)."""
+    flat = lambda g: np.isin(m.geom_type[g], [GeomType.BOX, GeomType.MESH])  # noqa: E731
+    mesh = (m.geom_type[g1] == GeomType.MESH) | (m.geom_type[g2] == GeomType.MESH)
+    multi = not m.opt.disableflags & _DSBL.mjDSBL_MULTICCD  # <flag multiccd="disable"/>: one contact
+    return flat(g1) & flat(g2) & mesh & (np.asarray(margin) == 0) & multi
+
+
+def _default_slots(
+    m: mujoco.MjModel, pairs: list[tuple[int, int]], window: np.ndarray, faceclip: np.ndarray
+) -> int:
     """Contact slots when the scene does not set ``nconmax``: ``default_nconmax`` of the candidates
     (as ``collision_driver.contact_layout`` lays them out), plus one slot per height-field
     candidate. On rough terrain a foot often touches several prisms at once (MuJoCo C reports 9
     contacts for the Barkour's four feet on its terrain at rest), so those candidates all keep a
     slot rather than share a quarter of one."""
-    groups: dict[tuple[int, int], list[int]] = {}
+    groups: dict[tuple, list[int]] = {}
     for k, (a, b) in enumerate(pairs):
-        groups.setdefault((int(m.geom_type[a]), int(m.geom_type[b])), []).append(k)
+        key = (int(m.geom_type[a]), int(m.geom_type[b])) + ((FACES,) if faceclip[k] else ())
+        groups.setdefault(key, []).append(k)
     other = terrain = 0
     for key, ks in groups.items():
         count = SUPPORTED[key][1]
@@ -532,8 +558,9 @@ def model_from_mujoco(
     g1 = np.array([p[0] for p in pairs], np.int32)
     g2 = np.array([p[1] for p in pairs], np.int32)
     geometry = _geometry_fields(m, pairs)
+    faceclip = _faceclip(m, g1, g2, mixed["margin"])
     if nconmax is None:
-        nconmax = m.nconmax if m.nconmax > 0 else _default_slots(m, pairs, geometry["pair_window"])
+        nconmax = m.nconmax if m.nconmax > 0 else _default_slots(m, pairs, geometry["pair_window"], faceclip)
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
     eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
@@ -560,6 +587,7 @@ def model_from_mujoco(
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
         pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
+        pair_faceclip=faceclip,
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
         solver_iterations=int(solver_iterations), nconmax=int(nconmax), linesearch=linesearch,

@@ -89,15 +89,18 @@ class Model:
                                                compiled (tendon.py: inertia and bias traced)
       friction_tendons                         (nfric_ten,) tendons with a friction-loss row
       pair_geom1, pair_geom2, pair_condim      (npair,) geom pairs that can touch (type1 <= type2)
+      pair_faceclip                            (npair,) box/mesh-mesh pairs with no margin: MuJoCo's
+                                               face-clipping multi-contact (else perturbation)
       pair_window                              (npair,2) height-field pairs: the rows and columns
                                                of cells examined around the geom (else 0)
       geom_meshid                              (ngeom,) the geom's convex hull in mesh_* (-1: none)
-      mesh_vertadr, mesh_vertnum               (nmesh,) each mesh's vertices in mesh_vert
+      mesh_vertadr, mesh_vertnum               (nmesh,) each hull's vertices in mesh_vert (the
+                                               compiler's convex hull, so maxhullvert holds)
       mesh_polyadr                             (nmesh,) each mesh's hull polygons in mesh_poly*
       mesh_polymap                             (nmeshvert, maxmap) the hull polygons each vertex
                                                lies on (mesh-local ids, -1 padded)
       mesh_polyvert                            (npoly, maxpolyvert) each polygon's vertices
-                                               (mesh-local ids, -1 padded)
+                                               (hull-local ids, -1 padded)
       geom_hfieldid                            (ngeom,) the geom's height field (-1: none)
       hfield_nrow, hfield_ncol, hfield_adr     (nhfield,) grid sizes; offsets in hfield_data
       eq_type, eq_obj1id, eq_obj2id, eq_objtype (neq,) equality constraints: mjtEq kind, the two
@@ -204,6 +207,7 @@ class Model:
     pair_geom1: np.ndarray
     pair_geom2: np.ndarray
     pair_condim: np.ndarray
+    pair_faceclip: np.ndarray
     pair_window: np.ndarray
     geom_meshid: np.ndarray
     mesh_vertadr: np.ndarray
