@@ -135,7 +135,7 @@ def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes:
     count = candidates_per_pair(m, key, idx)
     zeros = jnp.zeros((k, count, 3), sep.dtype)
     far = (jnp.full((k, count), prim._FAR, sep.dtype), zeros, zeros.at[..., 2].set(1.0), zeros)
-    solve = lambda a: jax.vmap(fn, axes)(*a)  # noqa: E731
+    solve = lambda a: tuple(x[:, :count] for x in jax.vmap(fn, axes)(*a))  # noqa: E731
     dist, pos, normal, tangent = jax.lax.cond(jnp.any(near), solve, lambda a: far, args)
     dist = jnp.where(near[:, None], dist, prim._FAR)
     if k < idx.size:
@@ -158,6 +158,8 @@ def _window(m: Model, idx: np.ndarray) -> tuple[int, int]:
 def candidates_per_pair(m: Model, key: tuple[int, int], idx: np.ndarray) -> int:
     """How many candidate contacts each pair of a type-pair group emits (static)."""
     count = SUPPORTED[key][1]
+    if key in GJK_PAIRS and not m.multiccd:  # <flag multiccd="disable"/>: the first contact only
+        count = 1
     if count is None:  # a height field: two prisms per cell of the window
         rows, cols = _window(m, idx)
         count = 2 * rows * cols

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics.collision_driver import FACES, SUPPORTED
+from fastrl.physics.collision_driver import FACES, GJK_PAIRS, SUPPORTED
 from fastrl.physics.constraint import contact_slots, default_nconmax
 from fastrl.physics.constraint import sizes as constraint_sizes
 from fastrl.physics.types import Data, GeomType, Integrator, JointType, Model
@@ -530,8 +530,9 @@ def _default_slots(
         key = (int(m.geom_type[a]), int(m.geom_type[b])) + ((FACES,) if faceclip[k] else ())
         groups.setdefault(key, []).append(k)
     other = terrain = 0
+    single = m.opt.disableflags & _DSBL.mjDSBL_MULTICCD
     for key, ks in groups.items():
-        count = SUPPORTED[key][1]
+        count = 1 if single and key in GJK_PAIRS else SUPPORTED[key][1]
         if count is None:  # a height field: two prisms per cell of the group's window
             terrain += len(ks) * 2 * int(np.prod(window[ks].max(axis=0)))
         else:
@@ -587,7 +588,7 @@ def model_from_mujoco(
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
         pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
-        pair_faceclip=faceclip,
+        pair_faceclip=faceclip, multiccd=not m.opt.disableflags & _DSBL.mjDSBL_MULTICCD,
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
         solver_iterations=int(solver_iterations), nconmax=int(nconmax), linesearch=linesearch,

@@ -108,6 +108,8 @@ class Model:
                                                objects (body or site for connect/weld)
       eq_active0                               (neq,)   1: active at reset (Data.eq_active)
       cone                                     0 pyramidal, 1 elliptic friction cone
+      multiccd                                 MuJoCo's multi-contact for convex pairs (False:
+                                               <flag multiccd="disable"/>, one contact a pair)
       solver_iterations                        static iteration count of the constraint solver
       linesearch                               'exact': fixed Newton steps with exact line
                                                searches (solver.py); 'mujoco': MuJoCo's islands,
@@ -225,6 +227,7 @@ class Model:
     eq_objtype: np.ndarray
     eq_active0: np.ndarray
     cone: int
+    multiccd: bool
     solver_iterations: int
     linesearch: str
     ls_iterations: int

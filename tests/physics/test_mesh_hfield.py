@@ -75,28 +75,22 @@ def _random_poses(mj: mujoco.MjModel, rng: np.random.Generator, n: int, height) 
     return out
 
 
-def _contacts(mj: mujoco.MjModel, qposes: np.ndarray, first_only: bool = False):
-    """MuJoCo's and fastrl's contacts per pose: sorted (geom1, geom2, dist, pos, normal) rows.
-    ``first_only``: each pair's first contact alone (for fastrl, its first candidate)."""
+def _contacts(mj: mujoco.MjModel, qposes: np.ndarray):
+    """MuJoCo's and fastrl's contacts per pose: sorted (geom1, geom2, dist, pos, normal) rows."""
     m = physics.model_from_mujoco(mj)
     md = mujoco.MjData(mj)
     layout = contact_layout(m)
-    first = np.r_[True, layout[1:] != layout[:-1]]  # each pair's first candidate
     fwd = jax.jit(jax.vmap(physics.forward, (None, 0)))
     d = jax.vmap(lambda q: physics.make_data(m).replace(qpos=q))(jnp.asarray(qposes))
     d = fwd(m, d)
     dist, pos, frame = (np.asarray(x) for x in (d.contact_dist, d.contact_pos, d.contact_frame))
-    active = (dist < np.asarray(m.pair_margin)[layout]) & (first if first_only else True)
+    active = dist < np.asarray(m.pair_margin)[layout]
     g1, g2 = m.pair_geom1[layout], m.pair_geom2[layout]
     theirs, ours = [], []
     for k, qpos in enumerate(qposes):
         md.qpos[:] = qpos
         mujoco.mj_forward(mj, md)
-        ref, seen = [], set()
-        for c in md.contact[: md.ncon]:
-            if not (first_only and (c.geom1, c.geom2) in seen):
-                ref.append((c.geom1, c.geom2, c.dist, *c.pos, *c.frame[:3]))
-            seen.add((c.geom1, c.geom2))
+        ref = [(c.geom1, c.geom2, c.dist, *c.pos, *c.frame[:3]) for c in md.contact[: md.ncon]]
         mine = [(g1[i], g2[i], dist[k, i], *pos[k, i], *frame[k, i, 0]) for i in np.flatnonzero(active[k])]
         theirs.append(np.array(sorted(ref)).reshape(-1, 9))
         ours.append(np.array(sorted(mine)).reshape(-1, 9))
@@ -261,12 +255,13 @@ def _clustered_poses(mj: mujoco.MjModel, n: int) -> np.ndarray:
 
 def test_gjk_epa_contacts_match_mujoco(x64):
     """Ten convex pairs (mesh-mesh, box/sphere/capsule/cylinder/ellipsoid against meshes,
-    cylinder-cylinder, cylinder-box, ellipsoid-box/cylinder), margins included: every contact
-    over 100 clustered random poses, apart and overlapping, against MuJoCo's GJK/EPA run to
+    cylinder-cylinder, cylinder-box, ellipsoid-box/cylinder), margins included, with
+    ``<flag multiccd="disable"/>`` (one contact a pair, on both sides): every contact over 100
+    clustered random poses, apart and overlapping, against MuJoCo's GJK/EPA run to
     convergence: to rounding between polytopes (and sphere/capsule cores), and on cylinders and
     ellipsoids the depth within 1e-5 and the position and normal within 3e-2 (99% within 3e-4)."""
     mj = _compile(_gjk_xml(multiccd=False))
-    theirs, ours = _contacts(mj, _clustered_poses(mj, 100), first_only=True)
+    theirs, ours = _contacts(mj, _clustered_poses(mj, 100))
     assert sum(len(t) for t in theirs) > 300
     curved = np.flatnonzero(
         np.isin(mj.geom_type, [mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_ELLIPSOID])
@@ -307,7 +302,7 @@ FACE_PAIRS_XML = """<mujoco><option ccd_tolerance="1e-13" ccd_iterations="1000"/
 def test_face_clipped_contacts_match_mujoco(x64):
     """Boxes and meshes against meshes with no margin: MuJoCo's face-clipping multi-contact
     (MuJoCo's GJK/EPA converged). Faces meeting nearly flat give 2-4 contacts, edges on faces 2,
-    other touches 1; over 120 poses at least 90% give MuJoCo's contacts to 1e-6 (measured: 93%;
+    other touches 1; over 90 poses at least 90% give MuJoCo's contacts to 1e-6 (measured: 88 of 90;
     the rest are edges on faces where fastrl's EPA ends on another face of the Minkowski
     difference and keeps its single contact where MuJoCo clips the edge to two)."""
     rng = np.random.default_rng(0)
@@ -318,7 +313,7 @@ def test_face_clipped_contacts_match_mujoco(x64):
             cube=_vertex(_CUBE), rock=_vertex(_ROCK * 0.7), first=first, second=second
         )
         mj = mujoco.MjModel.from_xml_string(xml)
-        poses = np.stack([_touching(mj, rng, aligned=k % 2 == 1) for k in range(40)])
+        poses = np.stack([_touching(mj, rng, aligned=k % 2 == 1) for k in range(30)])
         for theirs, ours in zip(*_contacts(mj, poses), strict=True):
             total += 1
             if theirs.shape == ours.shape and np.allclose(theirs, ours, atol=1e-6):
