@@ -4,16 +4,16 @@ Same contract as ``collision_primitive``: each function handles one geom-type pa
 fixed number of candidate contacts ``(dist, pos, normal, tangent)`` and is vmapped by the driver;
 a candidate MuJoCo would not report gets ``dist = _FAR`` (beyond any margin, so masked inactive).
 
-- **Plane-mesh**: the vertex deepest below the plane, then, from the hull polygon through that
-  vertex whose normal points most squarely into the plane, up to four corners, spread out: the
-  deepest, the one farthest from it, and the farthest on either side of the line between them;
-  those within the margin and on the plane's side of the mesh's centre are contacts. On a face
-  of up to four corners the corners within the margin are spread; on a larger face all corners
-  are spread first and then filtered. MuJoCo 4.0's rule is not in the source we can read (the
-  last public source takes up to two hull-graph neighbours); this one was fitted to MuJoCo
-  4.0's contacts: it matches them on hulls whose faces are triangles and quadrilaterals
-  (``tests/physics/test_mesh_hfield.py``) and in 1485 of 1500 random poses of Menagerie Spot's
-  foot mesh (11-gon faces), where MuJoCo sometimes keeps another corner.
+- **Plane-mesh**: the vertex deepest below the plane, then the hull polygon through that vertex
+  whose normal points most squarely into the plane. A polygon of up to four corners gives every
+  corner within the margin and on the plane's side of the mesh's centre; a larger one is first
+  spread over four corners (the deepest, the one farthest from it, and the farthest on either
+  side of the line between them), of which those within the margin are kept. MuJoCo 4.0's rule
+  is not in the source we can read (the last public source takes up to two hull-graph
+  neighbours); this one was fitted to MuJoCo 4.0's contacts: it matches them on hulls whose
+  faces are triangles and quadrilaterals (``tests/physics/test_mesh_hfield.py``) and in 1486 of
+  1500 random poses of Menagerie Spot's foot mesh (11-gon faces), where MuJoCo sometimes keeps
+  another corner.
 - **Plane-ellipsoid**: the ellipsoid's deepest point, one contact (``mjc_PlaneConvex``).
 - **Height field-sphere** follows ``mjc_ConvexHField``: the field is a grid of triangular prisms
   (two per cell, from the cell's top surface down to the base), and each prism the sphere
@@ -67,14 +67,18 @@ def plane_mesh(p_pos, p_mat, p_size, m_pos, m_mat, m_size, verts, polymap, polyv
     # The deepest vertex first, then the face's others (it lies on the face).
     order = jnp.argsort(jnp.where(face == best, -1, jnp.where(face >= 0, jnp.arange(face.size), face.size)))
     face = face[order]
+    if face.shape[0] < 4:  # triangles only: pad to the four candidates
+        face = jnp.concatenate([face, jnp.full(4 - face.shape[0], -1, face.dtype)])
     points = m_pos + verts[jnp.maximum(face, 0)] @ m_mat.T
     dist = (points - p_pos) @ normal
     below = (points - m_pos) @ normal < 0  # on the plane's side of the mesh's centre
-    near = (dist <= margin) & below
-    # A face of up to four corners keeps those near the plane; a larger one is spread first.
+    near = ((dist <= margin) & below & (face >= 0)).at[0].set(True)
+    # A face of up to four corners keeps every corner near the plane; a larger one is spread
+    # over four corners first, and those near the plane are kept.
     small = jnp.sum(face >= 0) <= 4
-    pick, used = _spread(points, (face >= 0) & (near | ~small), normal)
-    used = used & near[pick].at[0].set(True)
+    spread, spread_used = _spread(points, face >= 0, normal)
+    pick = jnp.where(small, jnp.arange(4), spread)
+    used = jnp.where(small, near[:4], spread_used & near[spread])
     dist = jnp.where(used, dist[pick], _FAR)
     pos = points[pick] - 0.5 * dist[:, None] * normal
     return dist, pos, jnp.tile(normal, (4, 1)), jnp.zeros((4, 3), normal.dtype)
