@@ -257,6 +257,24 @@ def _contacts(face, nface, poly, npoly, normal, direction, edge_subject):
     return -t, foot, foot + t[:, None] * direction, count
 
 
+def _normals(t, pos, mat, size, mesh, tables, dim, ids, direction):
+    if t == GeomType.BOX:
+        return _box_normals(mat, dim, ids, direction)
+    return _mesh_normals(mat, mesh, tables, dim, ids)
+
+
+def _edges(t, pos, mat, size, mesh, tables, dim, ids, points):
+    if t == GeomType.BOX:
+        return _box_edges(pos, mat, size, dim, ids, points)
+    return _mesh_edges(pos, mat, mesh, tables, dim, ids, points)
+
+
+def _face(t, pos, mat, size, mesh, tables, face, width):
+    if t == GeomType.BOX:
+        return _box_face(pos, mat, size, face, width)
+    return _mesh_face(pos, mat, mesh, tables, face, width)
+
+
 def faces_pair(type1: int, type2: int):
     """Collision of a box or mesh with a mesh (box-box has its own primitive): EPA's contact and
     MuJoCo's face-clipping multi-contact (see module doc), ``CONTACTS`` candidates. For pairs
@@ -285,32 +303,17 @@ def faces_pair(type1: int, type2: int):
         dim1, ids1, pts1 = _feature(ia, va)
         dim2, ids2, pts2 = _feature(ib, vb)
 
-        def normals(t, pos, mat, size, mesh, dim, ids, direction):
-            if t == GeomType.BOX:
-                return _box_normals(mat, dim, ids, direction)
-            return _mesh_normals(mat, mesh, tables, dim, ids)
-
-        def edges(t, pos, mat, size, mesh, dim, ids, pts):
-            if t == GeomType.BOX:
-                return _box_edges(pos, mat, size, dim, ids, pts)
-            return _mesh_edges(pos, mat, mesh, tables, dim, ids, pts)
-
-        def face_of(t, pos, mat, size, mesh, face):
-            if t == GeomType.BOX:
-                return _box_face(pos, mat, size, face, width)
-            return _mesh_face(pos, mat, mesh, tables, face, width)
-
-        g1 = (type1, pos1, mat1, size1, mesh1)
-        g2 = (type2, pos2, mat2, size2, mesh2)
-        n1, f1, ok1 = normals(*g1, dim1, ids1, x1 - x2)
-        n2, f2, ok2 = normals(*g2, dim2, ids2, x2 - x1)
+        g1 = (type1, pos1, mat1, size1, mesh1, tables)
+        g2 = (type2, pos2, mat2, size2, mesh2, tables)
+        n1, f1, ok1 = _normals(*g1, dim1, ids1, x1 - x2)
+        n2, f2, ok2 = _normals(*g2, dim2, ids2, x2 - x1)
         # faces facing each other: the first (i, j) in MuJoCo's order
         facing = (n1 @ n2.T < -FACE_TOL) & ok1[:, None] & ok2[None, :]
         ff, aligned = _first(facing.reshape(-1))
         fi, fj = ff // n2.shape[0], ff % n2.shape[0]
         # else an edge of the geom touching with fewer vertices lying in a face of the other
-        e1, end1, eok1 = edges(*g1, dim1, ids1, pts1)
-        e2, end2, eok2 = edges(*g2, dim2, ids2, pts2)
+        e1, end1, eok1 = _edges(*g1, dim1, ids1, pts1)
+        e2, end2, eok2 = _edges(*g2, dim2, ids2, pts2)
         try1 = ~aligned & (dim1 < 3) & (dim1 <= dim2)
         try2 = ~aligned & ~try1 & (dim2 < 3)
         lie1 = (jnp.abs(n2 @ e1.T) < EDGE_TOL) & ok2[:, None] & eok1[None, :]  # (faces of 2, edges of 1)
@@ -319,8 +322,8 @@ def faces_pair(type1: int, type2: int):
         fe2, found2 = _first(lie2.reshape(-1))
         edge1, edge2 = try1 & found1, try2 & found2
         # the clipping face (a face), the clipped polygon (a face or an edge), normal, direction
-        face_a1 = face_of(*g1, f1[jnp.where(edge2, fe2 // e2.shape[0], fi)])
-        face_a2 = face_of(*g2, f2[jnp.where(edge1, fe1 // e1.shape[0], fj)])
+        face_a1 = _face(*g1, f1[jnp.where(edge2, fe2 // e2.shape[0], fi)], width)
+        face_a2 = _face(*g2, f2[jnp.where(edge1, fe1 // e1.shape[0], fj)], width)
         seg1 = jnp.zeros((width, 3), pos1.dtype).at[0].set(pts1[0]).at[1].set(end1[fe1 % e1.shape[0]])
         seg2 = jnp.zeros((width, 3), pos1.dtype).at[0].set(pts2[0]).at[1].set(end2[fe2 % e2.shape[0]])
         na, nb = n1[jnp.where(edge2, fe2 // e2.shape[0], fi)], n2[jnp.where(edge1, fe1 // e1.shape[0], fj)]

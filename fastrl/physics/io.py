@@ -508,23 +508,27 @@ def _geometry_fields(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict:
     )  # fmt: skip
 
 
-def _faceclip(m: mujoco.MjModel, g1: np.ndarray, g2: np.ndarray, margin: np.ndarray) -> np.ndarray:
-    """Pairs MuJoCo gives its face-clipping multi-contact: a mesh against a mesh or a box, with
-    no margin (with a margin it searches by perturbation)."""
+def _faceclip(m: mujoco.MjModel, g1: np.ndarray, g2: np.ndarray, margin: np.ndarray) -> dict:
+    """``multiccd`` (False: ``<flag multiccd="disable"/>``, one contact per convex pair) and
+    ``pair_faceclip``: the pairs MuJoCo gives its face-clipping multi-contact, a mesh against a
+    mesh or a box with no margin (with a margin it searches by perturbation)."""
     flat = lambda g: np.isin(m.geom_type[g], [GeomType.BOX, GeomType.MESH])  # noqa: E731
     mesh = (m.geom_type[g1] == GeomType.MESH) | (m.geom_type[g2] == GeomType.MESH)
-    multi = not m.opt.disableflags & _DSBL.mjDSBL_MULTICCD  # <flag multiccd="disable"/>: one contact
-    return flat(g1) & flat(g2) & mesh & (np.asarray(margin) == 0) & multi
+    multi = not m.opt.disableflags & _DSBL.mjDSBL_MULTICCD
+    return {
+        "multiccd": multi,
+        "pair_faceclip": flat(g1) & flat(g2) & mesh & (np.asarray(margin) == 0) & multi,
+    }
 
 
-def _default_slots(
-    m: mujoco.MjModel, pairs: list[tuple[int, int]], window: np.ndarray, faceclip: np.ndarray
-) -> int:
+def _default_slots(m: mujoco.MjModel, pairs: list[tuple[int, int]], geometry: dict) -> int:
     """Contact slots when the scene does not set ``nconmax``: ``default_nconmax`` of the candidates
-    (as ``collision_driver.contact_layout`` lays them out), plus one slot per height-field
+    (as ``collision_driver.contact_layout`` lays them out from ``geometry``'s pair window and
+    face-clipping flags), plus one slot per height-field
     candidate. On rough terrain a foot often touches several prisms at once (MuJoCo C reports 9
     contacts for the Barkour's four feet on its terrain at rest), so those candidates all keep a
     slot rather than share a quarter of one."""
+    window, faceclip = geometry["pair_window"], geometry["pair_faceclip"]
     groups: dict[tuple, list[int]] = {}
     for k, (a, b) in enumerate(pairs):
         key = (int(m.geom_type[a]), int(m.geom_type[b])) + ((FACES,) if faceclip[k] else ())
@@ -558,10 +562,9 @@ def model_from_mujoco(
     mixed = _mix_pair_params(m, pairs)
     g1 = np.array([p[0] for p in pairs], np.int32)
     g2 = np.array([p[1] for p in pairs], np.int32)
-    geometry = _geometry_fields(m, pairs)
-    faceclip = _faceclip(m, g1, g2, mixed["margin"])
+    geometry = _geometry_fields(m, pairs) | _faceclip(m, g1, g2, mixed["margin"])
     if nconmax is None:
-        nconmax = m.nconmax if m.nconmax > 0 else _default_slots(m, pairs, geometry["pair_window"], faceclip)
+        nconmax = m.nconmax if m.nconmax > 0 else _default_slots(m, pairs, geometry)
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
     eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
@@ -588,7 +591,6 @@ def model_from_mujoco(
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
         pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
-        pair_faceclip=faceclip, multiccd=not m.opt.disableflags & _DSBL.mjDSBL_MULTICCD,
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
         solver_iterations=int(solver_iterations), nconmax=int(nconmax), linesearch=linesearch,
