@@ -135,7 +135,7 @@ def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes:
     count = candidates_per_pair(m, key, idx)
     zeros = jnp.zeros((k, count, 3), sep.dtype)
     far = (jnp.full((k, count), prim._FAR, sep.dtype), zeros, zeros.at[..., 2].set(1.0), zeros)
-    solve = lambda a: tuple(x[:, :count] for x in jax.vmap(fn, axes)(*a))  # noqa: E731
+    solve = lambda a: jax.vmap(fn, axes)(*a)  # noqa: E731
     dist, pos, normal, tangent = jax.lax.cond(jnp.any(near), solve, lambda a: far, args)
     dist = jnp.where(near[:, None], dist, prim._FAR)
     if k < idx.size:
@@ -268,6 +268,8 @@ def collision(m: Model, d: Data) -> Data:
                  d.geom_xpos[g2], d.geom_xmat[g2], m.geom_size[g2])  # fmt: skip
         extra, axes, static = _shape_args(m, key, idx) if key in SHAPED else ((), (), {})
         fn = functools.partial(fn, **static) if static else fn
+        if key in GJK_PAIRS and not m.multiccd:  # <flag multiccd="disable"/>: one contact a pair
+            fn = gjk.convex_pair(*key[:2], multi=False)
         if key in GJK_PAIRS:  # bounding spheres and GJK first
             dist, pos, normal, tangent = _cull(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
         else:

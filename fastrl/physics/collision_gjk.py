@@ -347,7 +347,7 @@ def separation(type1: int, type2: int):
     return dist
 
 
-def convex_pair(type1: int, type2: int):
+def convex_pair(type1: int, type2: int, multi: bool = True):
     """The collision function of two convex geom types (see module doc): GJK on their cores and,
     where the cores overlap, EPA. Signature as the driver's shaped functions: poses and sizes,
     then each geom's mesh vertices (ignored unless a mesh) and the margin.
@@ -359,7 +359,7 @@ def convex_pair(type1: int, type2: int):
     before it, joins with the first's distance. MuJoCo searches this way for pairs with a
     margin and for capsules and cylinders; a mesh against a mesh or box with no margin clips the
     touching faces instead (``collision_manifold``)."""
-    extra = contacts_per_pair(type1, type2) - 1
+    extra = contacts_per_pair(type1, type2) - 1 if multi else 0  # multi=False: multiccd disabled
     contact = single_contact(type1, type2)
 
     def collide(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, margin, rbound):
