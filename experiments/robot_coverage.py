@@ -414,8 +414,9 @@ def run_scenes(paths: dict[str, pathlib.Path], args) -> list[SceneResult]:
         row, mj, model = _load(name, path, args.meshes_off)
         if model is not None and not args.load_only:
             try:
-                _track(row, mj, model, args)
-                if args.throughput:
+                if not args.throughput_only:
+                    _track(row, mj, model, args)
+                if args.throughput or args.throughput_only:
                     _throughput(row, path, mj, args)
             except Exception as err:  # noqa: BLE001  (recorded; the test fails on any)
                 row.error = f"{type(err).__name__}: {err}"
@@ -597,6 +598,11 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=1024)
     parser.add_argument("--throughput-steps", type=int, default=100)
     parser.add_argument(
+        "--throughput-only",
+        action="store_true",
+        help="time batch 1024 and nothing else (``--merge`` adds the speeds to the tracked rows)",
+    )
+    parser.add_argument(
         "--linesearch",
         choices=["mujoco", "exact"],
         help="the solver fastrl's throughput runs (default: load_mjcf's)",
@@ -647,6 +653,8 @@ def main() -> None:
         "batch": args.batch,
         "variants": args.variants,
         "meshes_off": args.meshes_off,
+        "throughput_only": args.throughput_only,
+        "throughput_steps": args.throughput_steps,
     }
     stem = "robot_coverage_quick" if args.quick else "robot_coverage"
     stem += "_meshes_off" if args.meshes_off else ""
@@ -666,7 +674,14 @@ def merge(base: pathlib.Path, parts: list[pathlib.Path]) -> None:
     """Replaces the rows of ``base`` (a results JSON) with those of the later runs ``parts`` for the
     scenes they ran, and rewrites ``base`` and its page; the page names every run it draws on."""
     runs = [json.loads(p.read_text()) for p in (base, *parts)]
-    rows = {r["name"]: r for run in runs for r in run["rows"]}  # later runs win
+    rows: dict[str, dict] = {}
+    for run in runs:  # later runs win; a --throughput-only run adds its speeds to the rows
+        for r in run["rows"]:
+            if run["meta"].get("throughput_only") and r["name"] in rows:
+                rows[r["name"]].update(fastrl_sps=r["fastrl_sps"], mujoco_sps=r["mujoco_sps"])
+                rows[r["name"]]["error"] = rows[r["name"]]["error"] or r["error"]
+            else:
+                rows[r["name"]] = r
     meta = dict(runs[0]["meta"])
     meta["fastrl"] = " / ".join(dict.fromkeys(run["meta"]["fastrl"] for run in runs))
     meta["command"] = "`; `".join(run["meta"]["command"] for run in runs)

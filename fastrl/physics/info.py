@@ -33,13 +33,16 @@ def _collision(m: Model) -> str:
             how = f"{rows}x{cols}-cell window, {each} each"
         else:
             how = f"{each} each"
-        entry = parts.setdefault(f"{name} ({how}", [0, 0])
+        entry = parts.setdefault(f"{name} ({how}", [0, 0, 0])
         entry[0] += idx.size
         if key in collision_driver.GJK_PAIRS:
-            entry[1] += collision_driver.gjk_slots(idx.size)
+            gjk, epa = collision_driver.gjk_slots(idx.size)
+            entry[1] += gjk
+            entry[2] += epa
     out = []
-    for label, (n, solved) in parts.items():
-        out.append(f"{n} {label}" + (f"; {solved} solved per step)" if solved and solved < n else ")"))
+    for label, (n, gjk, epa) in parts.items():
+        culled = f"; GJK on {gjk}, EPA on {epa} per step)" if gjk and epa < n else ")"
+        out.append(f"{n} {label}{culled}")
     return ", ".join(out) or "none"
 
 

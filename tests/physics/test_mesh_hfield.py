@@ -15,7 +15,7 @@ import pytest
 
 from fastrl import physics
 from fastrl.physics import collision_convex as convex
-from fastrl.physics.collision_driver import contact_layout
+from fastrl.physics.collision_driver import contact_layout, gjk_slots
 
 _RNG = np.random.default_rng(3)
 _ROCK = _RNG.standard_normal((40, 3)) * [0.08, 0.05, 0.04]
@@ -405,3 +405,29 @@ def test_hfield_gjk_contacts_match_mujoco(x64):
         np.testing.assert_allclose(o[bent, :3], t[bent, :3], atol=1e-5)
         np.testing.assert_allclose(o[bent, 3:], t[bent, 3:], atol=3e-2)
     assert differ <= 0.05 * len(qposes)
+
+
+def test_culled_mesh_group_keeps_every_touching_pair(x64):
+    """Twelve mesh cubes in a 3 x 4 grid (66 mesh-mesh pairs, one contact each): GJK runs on the
+    33 pairs whose bounding spheres overlap most and EPA on the 16 closest of those. With 29
+    spheres overlapping and up to 9 pairs touching, every pose gives MuJoCo's contacts."""
+    assert gjk_slots(66) == (33, 16)
+    bodies = "".join(
+        f'<body pos="{0.1 * i} {0.12 * j} 0"><freejoint/><geom type="mesh" mesh="cube"/></body>'
+        for i in range(4)
+        for j in range(3)
+    )
+    mj = mujoco.MjModel.from_xml_string(
+        f'<mujoco><option ccd_tolerance="1e-13" ccd_iterations="1000"><flag multiccd="disable"/>'
+        f'</option><asset><mesh name="cube" vertex="{_vertex(_CUBE)}"/></asset>'
+        f"<worldbody>{bodies}</worldbody></mujoco>"
+    )
+    rng = np.random.default_rng(8)
+    qposes = np.tile(mj.qpos0, (40, 1)).reshape(40, 12, 7)
+    qposes[..., :3] += rng.normal(0, 0.004, (40, 12, 3))
+    quat = np.c_[np.ones(40 * 12), rng.normal(0, 0.05, (40 * 12, 3))].reshape(40, 12, 4)
+    qposes[..., 3:] = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
+    theirs, ours = _contacts(mj, qposes.reshape(40, -1))
+    assert max(len(t) for t in theirs) >= 6
+    for t, o in zip(theirs, ours, strict=True):
+        np.testing.assert_allclose(o, t, atol=1e-6)
