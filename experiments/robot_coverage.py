@@ -119,6 +119,7 @@ class SceneResult:
     root_floor_f32: float | None = None
     random_steps: int = 0
     random_finite: bool | None = None  # finite and not diverged after random_steps (float32)
+    random_mujoco_unstable: int | None = None  # first step MuJoCo C (float64) warns of a bad qacc
     shortened: str = ""  # why the tracking and random runs were cut short (--budget), if they were
     fastrl_sps: float | None = None  # --throughput: control steps/s at batch 1024
     mujoco_sps: float | None = None  # --throughput: mujoco.rollout, 2 threads
@@ -279,6 +280,8 @@ def _float32(row: SceneResult, mj: mujoco.MjModel, args) -> None:
             row.root_err_f32 = float(np.where(np.isfinite(dist), dist, np.inf).max())
             row.root_floor_f32 = _rounded_state_drift(mj, root, ref)
         row.random_finite = _random_finite(mj, model, run, row.random_steps, args.chunk)
+        if not row.random_finite:  # does MuJoCo C itself blow up under those controls?
+            row.random_mujoco_unstable = _mujoco_unstable(mj, _random_controls(mj, row.random_steps))
 
 
 def _rounded_state_drift(mj: mujoco.MjModel, root: np.ndarray, ref: np.ndarray) -> float:
@@ -297,15 +300,31 @@ def _rounded_state_drift(mj: mujoco.MjModel, root: np.ndarray, ref: np.ndarray) 
     return float(dist.max())
 
 
+def _random_controls(mj: mujoco.MjModel, steps: int) -> np.ndarray:
+    """(steps, nu) controls uniform over each actuator's ctrlrange ([-1, 1] if unlimited), seed 0."""
+    limited = mj.actuator_ctrllimited.astype(bool)
+    lo = np.where(limited, mj.actuator_ctrlrange[:, 0], -1.0)
+    hi = np.where(limited, mj.actuator_ctrlrange[:, 1], 1.0)
+    return np.random.default_rng(0).uniform(lo, hi, (steps, mj.nu))
+
+
+def _mujoco_unstable(mj: mujoco.MjModel, ctrls: np.ndarray) -> int | None:
+    """The first step at which MuJoCo C (float64) warns of a bad acceleration (and resets) under
+    ``ctrls``, or None if it never does."""
+    d_mj, _ = _initial(mj)
+    for t, ctrl in enumerate(ctrls):
+        d_mj.ctrl[:] = ctrl
+        mujoco.mj_step(mj, d_mj)
+        if d_mj.warning[mujoco.mjtWarning.mjWARN_BADQACC].number or not np.isfinite(d_mj.qpos).all():
+            return t
+    return None
+
+
 def _random_finite(mj: mujoco.MjModel, model: physics.Model, run, steps: int, chunk: int) -> bool:
     """Whether fastrl stays finite (and not ``diverged``) under uniformly random controls."""
     d_mj, _ = _initial(mj)
     d0 = physics.make_data(model, qpos=d_mj.qpos.copy(), qvel=d_mj.qvel.copy(), ctrl=d_mj.ctrl.copy())
-    limited = mj.actuator_ctrllimited.astype(bool)
-    lo = np.where(limited, mj.actuator_ctrlrange[:, 0], -1.0)
-    hi = np.where(limited, mj.actuator_ctrlrange[:, 1], 1.0)
-    ctrls = np.random.default_rng(0).uniform(lo, hi, (steps, mj.nu))
-    qpos, d = _fastrl_qpos(run, d0, ctrls, chunk)
+    qpos, d = _fastrl_qpos(run, d0, _random_controls(mj, steps), chunk)
     finite = np.isfinite(qpos).all() and np.isfinite(np.asarray(d.qvel)).all()
     return bool(finite and not bool(d.diverged))
 
@@ -438,6 +457,7 @@ def summarize(rows: list[SceneResult]) -> dict:
         "tracked": sum(bool(r.qpos_err) for r in rows),
         "tracks": {v: sum(r.tracks(v) for r in rows) for v in VARIANTS},
         "random_finite": sum(bool(r.random_finite) for r in rows),
+        "random_mujoco_unstable": sum(r.random_mujoco_unstable is not None for r in rows),
         "root_f32_within_1cm": sum(r.root_err_f32 is not None and r.root_err_f32 <= ROOT_TOL for r in rows),
         "with_root": sum(r.root_err_f32 is not None for r in rows),
         "root_floor_above_1cm": sum(
@@ -492,7 +512,13 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         f"{s['with_root']} with a free root keep it within 1 cm of MuJoCo C's (in "
         f"{s['root_floor_above_1cm']}, MuJoCo C itself parts by more when its state is rounded to "
         f"float32 each step); {s['random_finite']} of "
-        f"{s['tracked']} stay finite over {meta['random_steps']} steps of random controls.",
+        f"{s['tracked']} stay finite over {meta['random_steps']} steps of random controls"
+        + (
+            f" (MuJoCo C itself blows up under the same controls in {s['random_mujoco_unstable']} of "
+            "the others)."
+            if s.get("random_mujoco_unstable")
+            else "."
+        ),
         f"- Errors other than a refusal: {', '.join(s['errors']) or 'none'}.",
         *(
             [
@@ -549,6 +575,8 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
             for v in variants
         )
         rnd = "" if r.random_finite is None else f"{'yes' if r.random_finite else 'NO'} ({r.random_steps})"
+        if r.random_mujoco_unstable is not None:
+            rnd += f"; MuJoCo C too, from step {r.random_mujoco_unstable}"
         root_mm = None if r.root_err_f32 is None else 1e3 * r.root_err_f32
         floor_mm = None if r.root_floor_f32 is None else 1e3 * r.root_floor_f32
         out.append(

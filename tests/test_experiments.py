@@ -1,4 +1,9 @@
-"""Each experiment script runs end to end in its tiny mode, so the evidence cannot rot."""
+"""Each experiment script runs end to end in its tiny mode, so the evidence cannot rot.
+
+The four whose tiny mode takes over half a minute on two cores (each compiles several learners
+or a two-device split) are ``slow`` (``pytest -m slow tests/test_experiments.py``); what they
+exercise underneath (the vector env, two devices, divergence detection, the solver settings) has
+its own quick tests in ``tests/envs`` and ``tests/train``."""
 
 from __future__ import annotations
 
@@ -38,12 +43,14 @@ def test_bench_contacts_quick(tmp_path):
     assert (tmp_path / "contacts_throughput_quick.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_stability_sweep_quick(tmp_path):
     rows = _run_quick("stability_sweep.py", tmp_path, "stability_sweep_quick.json")
     assert {r["integrator"] for r in rows} == {"euler", "rk4"}
     assert all(0.0 <= r["guard_fraction"] <= r["blowup_fraction"] <= 1.0 for r in rows)
 
 
+@pytest.mark.slow
 def test_bench_envs_quick(tmp_path):
     result = _run_quick("bench_envs.py", tmp_path, "env_throughput_quick.json")
     assert all(r["control_steps_per_s"] > 0 and r["diverged"] == 0 for r in result["envs"])
@@ -158,6 +165,7 @@ def test_stability_map_quick(tmp_path):
     assert (again / "stability_map_quick.md").read_text() == text
 
 
+@pytest.mark.slow
 def test_learner_stability_quick(tmp_path):
     result = _run_quick("learner_stability.py", tmp_path, "learner_stability_quick.json")
     assert [c["algo"] for c in result["cells"]] == ["ppo", "sac"]
@@ -205,6 +213,7 @@ def test_time_to_return_reuses_saved_brax_runs_and_says_so(tmp_path):
         ttr.reused_brax_runs(saved, "inverted_pendulum", [0])
 
 
+@pytest.mark.slow
 def test_solver_iterations_quick(tmp_path):
     rows = _run_quick("solver_iterations.py", tmp_path, "solver_iterations_quick.json")
     assert [r["name"] for r in rows] == ["inverted_pendulum", "hopper"]

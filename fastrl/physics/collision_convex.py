@@ -4,16 +4,14 @@ Same contract as ``collision_primitive``: each function handles one geom-type pa
 fixed number of candidate contacts ``(dist, pos, normal, tangent)`` and is vmapped by the driver;
 a candidate MuJoCo would not report gets ``dist = _FAR`` (beyond any margin, so masked inactive).
 
-- **Plane-mesh**: the vertex deepest below the plane, then the hull polygon through that vertex
-  whose normal points most squarely into the plane. A polygon of up to four corners gives every
-  corner within the margin and on the plane's side of the mesh's centre; a larger one is first
-  spread over four corners (the deepest, the one farthest from it, and the farthest on either
-  side of the line between them), of which those within the margin are kept. MuJoCo 4.0's rule
-  is not in the source we can read (the last public source takes up to two hull-graph
-  neighbours); this one was fitted to MuJoCo 4.0's contacts: it matches them on hulls whose
-  faces are triangles and quadrilaterals (``tests/physics/test_mesh_hfield.py``) and in 1486 of
-  1500 random poses of Menagerie Spot's foot mesh (11-gon faces), where MuJoCo sometimes keeps
-  another corner.
+- **Plane-mesh** (``mjc_PlaneConvex`` as MuJoCo 4.0 runs it): the vertex deepest below the
+  plane, then the hull polygon through that vertex whose normal points most squarely into the
+  plane. A polygon of more than four corners is pruned to a quadrilateral that keeps the deepest
+  vertex: starting from it and the next three corners, the last, third and second corners
+  advance while the area (half the cross product of the diagonals) grows. Of the four, those
+  within the margin and not above the mesh's centre give contacts. The last public MuJoCo source
+  we can read takes hull-graph neighbours instead; this rule gives MuJoCo 4.0's contacts in every
+  one of 1500 random poses of each of Menagerie Spot's four collision meshes (11-gon faces).
 - **Plane-ellipsoid**: the ellipsoid's deepest point, one contact (``mjc_PlaneConvex``).
 - **Height field-sphere** follows ``mjc_ConvexHField``: the field is a grid of triangular prisms
   (two per cell, from the cell's top surface down to the base), and each prism the sphere
@@ -35,52 +33,34 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl.physics import collision_gjk as gjk
+from fastrl.physics import collision_manifold as manifold
 from fastrl.physics.collision_primitive import _FAR, _normalize
 from fastrl.physics.math import cross, dot
 from fastrl.physics.types import GeomType
 
 
-def _spread(points, ok, normal):
-    """Up to four of ``points`` (where ``ok``), spread over their polygon: the first (the deepest),
-    the one farthest from it, and the farthest on either side of the line between those two.
-    Returns four indices and whether each is used."""
-    flat = points - (points @ normal)[:, None] * normal
-    a = 0
-    far = jnp.where(ok, jnp.sum((flat - flat[a]) ** 2, axis=-1), -1.0)
-    b = jnp.argmax(far)
-    side = jnp.where(ok, cross(flat[b] - flat[a], flat - flat[a]) @ normal, 0.0)
-    c, d = jnp.argmax(side), jnp.argmin(side)
-    tiny = 1e-12 * jnp.maximum(jnp.max(far), 1e-30)
-    used = jnp.stack([ok[a], far[b] > 0, side[c] > tiny, side[d] < -tiny])
-    return jnp.stack([a, b, c, d]), used
-
-
 def plane_mesh(p_pos, p_mat, p_size, m_pos, m_mat, m_size, verts, polymap, polyvert, polynormal, margin):
     """Four contacts: the deepest vertex, then the corners of the hull polygon it lies on that
-    faces the plane most squarely (see module doc)."""
+    faces the plane most squarely, pruned to a large quadrilateral that keeps the deepest vertex
+    (see module doc)."""
     del p_size, m_size
     normal = p_mat[:, 2]
     best = jnp.argmax(verts @ (m_mat.T @ -normal))
     polys = polymap[best]
     facing = jnp.where(polys >= 0, (polynormal[jnp.maximum(polys, 0)] @ m_mat.T) @ normal, jnp.inf)
     face = polyvert[polys[jnp.argmin(facing)]]
-    # The deepest vertex first, then the face's others (it lies on the face).
-    order = jnp.argsort(jnp.where(face == best, -1, jnp.where(face >= 0, jnp.arange(face.size), face.size)))
-    face = face[order]
     if face.shape[0] < 4:  # triangles only: pad to the four candidates
         face = jnp.concatenate([face, jnp.full(4 - face.shape[0], -1, face.dtype)])
-    points = m_pos + verts[jnp.maximum(face, 0)] @ m_mat.T
+    n = jnp.sum(face >= 0)
+    # From the deepest vertex's place in the face: the face itself when it has up to four
+    # corners (in order from there), else the walk to a large quadrilateral that keeps it.
+    pick = face[manifold.quad(verts[jnp.maximum(face, 0)], n, first=jnp.argmax(face == best))]
+    points = m_pos + verts[jnp.maximum(pick, 0)] @ m_mat.T
     dist = (points - p_pos) @ normal
-    below = (points - m_pos) @ normal < 0  # on the plane's side of the mesh's centre
-    near = ((dist <= margin) & below & (face >= 0)).at[0].set(True)
-    # A face of up to four corners keeps every corner near the plane; a larger one is spread
-    # over four corners first, and those near the plane are kept.
-    small = jnp.sum(face >= 0) <= 4
-    spread, spread_used = _spread(points, face >= 0, normal)
-    pick = jnp.where(small, jnp.arange(4), spread)
-    used = jnp.where(small, near[:4], spread_used & near[spread])
-    dist = jnp.where(used, dist[pick], _FAR)
-    pos = points[pick] - 0.5 * dist[:, None] * normal
+    below = (points - m_pos) @ normal <= 0  # not above the mesh's centre
+    used = ((dist <= margin) & below & (jnp.arange(4) < n)).at[0].set(True)
+    dist = jnp.where(used, dist, _FAR)
+    pos = points - 0.5 * dist[:, None] * normal
     return dist, pos, jnp.tile(normal, (4, 1)), jnp.zeros((4, 3), normal.dtype)
 
 

@@ -195,21 +195,33 @@ def _clip(face, nface, poly, npoly, normal):
 
 
 def _area4(a, b, c, d):
+    """``polygonQuad``'s measure of the quadrilateral abcd."""
     return 0.5 * jnp.linalg.norm(jnp.cross(d - a, b - d) + jnp.cross(c - b, a - c))
 
 
-def _quad(poly, n):
-    """MuJoCo's ``polygonQuad``: the corners (4 ids) of a large-area quadrilateral of the convex
-    polygon's ``n`` points, by its walk: for each first corner, advance the last, third and
-    second while the area grows. One walk step per ``while_loop`` pass."""
+def _diagonals(a, b, c, d):
+    """``mjc_PlaneConvex``'s: half the cross product of the diagonals."""
+    return 0.5 * jnp.linalg.norm(jnp.cross(a - c, b - d))
+
+
+def quad(poly, n, first=None):
+    """A large-area quadrilateral of the convex polygon's ``n`` points (4 ids), by MuJoCo's walk:
+    from a first corner, advance the last, third and second corners while the area grows
+    (``polygonQuad`` tries every first corner, for more than four points; with ``first`` given,
+    ``mjc_PlaneConvex`` keeps that one and walks once, ``(first, first+1, ...)`` when ``n <= 4``).
+    Each measures the area its own way. One walk step per ``while_loop`` pass."""
     nxt = lambda i: jnp.where(i + 1 < n, i + 1, 0)  # noqa: E731
-    area = lambda a, b, c, d: _area4(poly[a], poly[b], poly[c], poly[d])  # noqa: E731
-    # state: a, b, c, d, best area, phase (0 advance d, 1 advance c, 2 advance b), result
-    start = (jnp.where(n > 4, 0, n), jnp.asarray(1), jnp.asarray(2), jnp.asarray(3), area(0, 1, 2, 3),
-             jnp.asarray(0), jnp.arange(4))  # fmt: skip
+    measure = _area4 if first is None else _diagonals
+    area = lambda a, b, c, d: measure(poly[a], poly[b], poly[c], poly[d])  # noqa: E731
+    if first is None:
+        a0, corners = jnp.where(n > 4, 0, n), jnp.arange(4)
+    else:
+        a0, corners = jnp.asarray(first), (first + jnp.arange(4)) % jnp.maximum(n, 1)
+    # state: a, b, c, d, best area, phase (0 advance d, 1 advance c, 2 advance b), result, stop
+    start = (a0, corners[1], corners[2], corners[3], area(*corners), jnp.asarray(0), corners, n <= 4)
 
     def step(s):
-        a, b, c, d, m, phase, res = s
+        a, b, c, d, m, phase, res, _ = s
         trial = jnp.where(
             phase == 0,
             area(a, b, c, nxt(d)),
@@ -224,14 +236,16 @@ def _quad(poly, n):
         # d grew: try c; c stopped: try b; b stopped: try d again; d stopped: next first corner
         phase2 = jnp.where(phase == 0, jnp.where(grows, 1, 0), jnp.where(grows, phase, (phase + 1) % 3))
         done_a = (phase == 0) & ~grows
+        if first is not None:  # one walk from the given corner
+            return (a, b2, c2, d2, m2, phase2, res2, done_a)
         # the first corner moves on, pushing the others off it
         b3 = jnp.where(done_a & (b2 == a), nxt(b2), b2)
         c3 = jnp.where(done_a & (b2 == a) & (c2 == b3), nxt(c2), c2)
         d3 = jnp.where(done_a & (b2 == a) & (c2 == b3) & (d2 == c3), nxt(d2), d2)
-        return (jnp.where(done_a, a + 1, a), b3, c3, d3, m2, phase2, res2)
+        a3 = jnp.where(done_a, a + 1, a)
+        return (a3, b3, c3, d3, m2, phase2, res2, a3 >= n)
 
-    out = jax.lax.while_loop(lambda s: s[0] < n, step, start)
-    return out[-1]
+    return jax.lax.while_loop(lambda s: ~s[-1], step, start)[-2]
 
 
 def _contacts(face, nface, poly, npoly, normal, direction, edge_subject):
@@ -239,7 +253,7 @@ def _contacts(face, nface, poly, npoly, normal, direction, edge_subject):
     and level with the clipped points, and how many (MuJoCo's choice of at most four)."""
     poly, n = _clip(face, nface, poly, npoly, normal)
     # more than four: the quadrilateral; an edge: its two farthest points; else all of them
-    quad = _quad(poly, n)
+    corners = quad(poly, n)
     diff = poly[:, None, :] - poly[None, :, :]
     d2 = jnp.sum(diff * diff, -1)
     k = jnp.arange(poly.shape[0])
@@ -247,7 +261,7 @@ def _contacts(face, nface, poly, npoly, normal, direction, edge_subject):
     flat = jnp.argmax(jnp.where(pairs, d2, -1.0).reshape(-1))
     far = jnp.array([flat // poly.shape[0], flat % poly.shape[0], 0, 0])
     far = jnp.where(jnp.max(jnp.where(pairs, d2, -1.0)) > 0, far, jnp.array([0, 1, 0, 0]))
-    pick = jnp.where(n > 4, quad, jnp.where(edge_subject & (n > 2), far, jnp.arange(4)))
+    pick = jnp.where(n > 4, corners, jnp.where(edge_subject & (n > 2), far, jnp.arange(4)))
     count = jnp.where(n > 4, 4, jnp.where(edge_subject & (n > 2), 2, jnp.minimum(n, 4)))
     v = poly[pick]
     # MuJoCo 4.0's witnesses: the point's foot on the clipping face's plane, and from there along

@@ -118,6 +118,30 @@ def test_plane_mesh_contacts_match_mujoco(x64):
         np.testing.assert_allclose(o, t, atol=1e-9)
 
 
+def test_plane_mesh_on_large_faces_matches_mujoco(x64):
+    """A prism over an irregular 11-gon (the kind of face Menagerie's foot meshes have): the deepest
+    vertex's face is pruned to MuJoCo's quadrilateral. Every contact of 400 poses, to rounding,
+    half of them with a cap nearly flat on the plane."""
+    rng = np.random.default_rng(11)
+    angle = np.sort(rng.uniform(0, 2 * np.pi, 11))
+    ring = np.c_[0.05 * np.cos(angle), 0.04 * np.sin(angle)]
+    prism = np.concatenate([np.c_[ring, np.full(11, -0.02)], np.c_[ring, np.full(11, 0.02)]])
+    mj = mujoco.MjModel.from_xml_string(
+        f'<mujoco><asset><mesh name="prism" vertex="{_vertex(prism)}"/></asset><worldbody>'
+        '<geom type="plane" size="3 3 .1"/><body><freejoint/><geom type="mesh" mesh="prism"/>'
+        "</body></worldbody></mujoco>"
+    )
+    qposes = _random_poses(mj, rng, 400, (0.0, 0.06))
+    tilt = np.c_[np.ones(200), rng.uniform(-0.1, 0.1, (200, 2)), np.zeros(200)]
+    qposes[:200, 2] = rng.uniform(0.0, 0.025, 200)
+    qposes[:200, 3:7] = tilt / np.linalg.norm(tilt, axis=1, keepdims=True)
+    theirs, ours = _contacts(mj, qposes)
+    assert sum(len(t) >= 3 for t in theirs) > 50
+    for t, o in zip(theirs, ours, strict=True):
+        assert t.shape == o.shape
+        np.testing.assert_allclose(o, t, atol=1e-9)
+
+
 def test_hfield_sphere_contacts_match_mujoco(x64):
     """Two spheres (one with a margin) over rough terrain: the same prisms touched, and each
     contact to rounding while the centre stays outside the prism (MuJoCo's GJK then is exact);
