@@ -39,8 +39,7 @@ import sys
 import mujoco
 import numpy as np
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-import robot_scenes  # noqa: E402
+from fastrl import robot_scenes
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 BAR_MM = 10.0

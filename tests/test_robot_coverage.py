@@ -19,6 +19,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from fastrl import robot_scenes
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCENES = 41  # the count in envpool-assets 0.4.0; a new wheel version that changes it should say so
 
@@ -33,7 +35,6 @@ def _experiment(name: str):
     return sys.modules[name]
 
 
-robot_scenes = _experiment("robot_scenes")
 robot_coverage = _experiment("robot_coverage")
 PATHS = robot_scenes.scene_paths()
 

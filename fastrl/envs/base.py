@@ -79,29 +79,32 @@ class Randomization:
 
     Scales are multiplicative and uniform in ``[1 - w, 1 + w]``. Mass scales each body's mass
     and rotational inertia together (a density change); friction scales every contact pair's
-    friction coefficients; damping scales every dof's damping. Quantities MuJoCo precomputes at
-    compile time from the nominal model (``body_invweight0``, which sets contact softness) are
-    not recomputed, as in MJX.
+    friction coefficients; damping scales every dof's damping; gain scales each actuator's
+    gain and its position feedback together (a position servo's ``kp``; a motor's gear).
+    Quantities MuJoCo precomputes at compile time from the nominal model (``body_invweight0``,
+    which sets contact softness) are not recomputed, as in MJX.
 
     Fields:
       mass        half-width of the per-body mass scale
       friction    half-width of the per-env friction scale
       damping     half-width of the per-dof damping scale
+      gain        half-width of the per-actuator gain scale
     """
 
     mass: float = 0.0
     friction: float = 0.0
     damping: float = 0.0
+    gain: float = 0.0
 
     def __post_init__(self):
-        for name in ("mass", "friction", "damping"):
+        for name in ("mass", "friction", "damping", "gain"):
             w = getattr(self, name)
             if not 0.0 <= w < 1.0:
                 raise ValueError(f"randomization.{name}={w}: the half-width must be in [0, 1)")
 
     @property
     def enabled(self) -> bool:
-        return bool(self.mass or self.friction or self.damping)
+        return bool(self.mass or self.friction or self.damping or self.gain)
 
 
 class Env:
@@ -115,7 +118,8 @@ class Env:
       frame_skip: physics steps per env step.
       reward_weights: overrides of ``default_weights`` by term name.
       reset_noise_scale: scale of the reset noise (meaning per env, as in Gymnasium).
-      randomization: domain randomisation ranges (off by default).
+      randomization: domain randomisation ranges, over the env's ``default_randomization``
+        (off, except in the robot tasks).
       asset: MJCF file (name in ``fastrl/assets`` or a path); defaults to the env's own.
       solver_iterations: constraint-solver iterations (None: the model's default).
       integrator: ``"euler"``, ``"rk4"`` or ``"implicitfast"`` (None: the asset's).
@@ -129,6 +133,10 @@ class Env:
     default_episode_length: int = 1000
     default_weights: Mapping[str, float] = {}
     default_reset_noise_scale: float = 0.0
+    default_randomization: Mapping[str, float] = {}
+    # The Newton solver's line search: "exact" for fastrl's own scenes (the budgets in
+    # fastrl/assets/README.md were measured for it); "mujoco" steps a scene as MuJoCo C does.
+    linesearch: str = "exact"
     # Whether gradients of the return through the physics are informative (smooth dynamics and
     # rewards); analytic policy gradients refuse envs without, explaining ``gradient_note``.
     smooth_gradients: bool = False
@@ -165,19 +173,18 @@ class Env:
         self.reset_noise_scale = float(
             self.default_reset_noise_scale if reset_noise_scale is None else reset_noise_scale
         )
-        if isinstance(randomization, Mapping):
-            randomization = Randomization(**randomization)
-        self.randomization = randomization or Randomization()
+        if randomization is None or isinstance(randomization, Mapping):  # over the env's defaults
+            randomization = Randomization(**{**self.default_randomization, **(randomization or {})})
+        self.randomization = randomization
         self.terminate_when_unhealthy = bool(terminate_when_unhealthy)
         path = Path(asset or self.asset)
         if not path.is_absolute() and not path.exists():
             path = ASSETS / path
         if not path.exists():
             raise FileNotFoundError(f"{self.name}: asset {path} does not exist")
+        self.asset_path = path  # the MJCF file the model was loaded from
         kw = {} if solver_iterations is None else {"solver_iterations": int(solver_iterations)}
-        # fastrl's environments step a fixed budget of Newton iterations with exact line searches
-        # (the budgets in fastrl/assets/README.md were measured for that solver)
-        model = physics.load_mjcf(path, integrator=integrator, linesearch="exact", **kw)
+        model = physics.load_mjcf(path, integrator=integrator, linesearch=self.linesearch, **kw)
         if timestep is not None:
             model = model.replace(timestep=jnp.asarray(timestep, model.timestep.dtype))
         self.model: Model = model
@@ -198,6 +205,10 @@ class Env:
         """Weighted reward terms (their sum is the reward), the task's termination flag, and
         extra metrics of one step. Weights come from ``self.reward_weights`` by term name."""
         raise NotImplementedError
+
+    def _control(self, action: jax.Array, task: dict) -> jax.Array:
+        """(nu,) the controls an action sets (default: the action itself, as in Gymnasium)."""
+        return action
 
     # Goal-conditioned envs override these three instead of ``_observe``/``_reward``; the task
     # (a dict of arrays, e.g. a target position) lives in ``State.task``.
@@ -299,8 +310,10 @@ class Env:
         model = self._model(state.params)
         before = state.data
 
+        ctrl = self._control(action, state.task)
+
         def substep(data, _):
-            return physics.step(model, data, action), None
+            return physics.step(model, data, ctrl), None
 
         after, _ = jax.lax.scan(substep, before, None, length=self.frame_skip)
         task_key = jax.random.fold_in(state.rng, 2)
@@ -371,7 +384,7 @@ class Env:
         params = {}
         if not r.enabled:
             return params
-        k1, k2, k3 = jax.random.split(key, 3)
+        k1, k2, k3, k4 = jax.random.split(key, 4)
         dtype = m.body_mass.dtype
         if r.mass:
             params["mass_scale"] = jax.random.uniform(k1, (m.nbody,), dtype, 1 - r.mass, 1 + r.mass)
@@ -379,6 +392,8 @@ class Env:
             params["friction_scale"] = jax.random.uniform(k2, (), dtype, 1 - r.friction, 1 + r.friction)
         if r.damping:
             params["damping_scale"] = jax.random.uniform(k3, (m.nv,), dtype, 1 - r.damping, 1 + r.damping)
+        if r.gain:
+            params["gain_scale"] = jax.random.uniform(k4, (m.nu,), dtype, 1 - r.gain, 1 + r.gain)
         return params
 
     def _model(self, params: dict) -> Model:
@@ -391,6 +406,12 @@ class Env:
             m = m.replace(pair_friction=m.pair_friction * params["friction_scale"])
         if "damping_scale" in params:
             m = m.replace(dof_damping=m.dof_damping * params["damping_scale"])
+        if "gain_scale" in params:  # gain and position feedback (biasprm[1] = -kp) together
+            s = params["gain_scale"]
+            m = m.replace(
+                actuator_gainprm=m.actuator_gainprm.at[:, 0].multiply(s),
+                actuator_biasprm=m.actuator_biasprm.at[:, 1].multiply(s),
+            )
         return m
 
     def uniform(self, key: jax.Array, shape, scale: float) -> jax.Array:

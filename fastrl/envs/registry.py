@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fastrl.envs import locomotion, manipulation, scenes
+from fastrl.envs import locomotion, manipulation, robots, scenes
 from fastrl.envs.base import Env
 
 _REGISTRY: dict[str, type[Env]] = {}
@@ -32,6 +32,7 @@ for _cls in (
     scenes.ArmPush,
     scenes.HandReorient,
     scenes.AntGoal,
+    robots.Go1Joystick,
 ):
     register(_cls)
 

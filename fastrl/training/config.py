@@ -200,7 +200,8 @@ class EnvConfig:
       frame_skip          physics steps per env step
       reward_weights      {term: weight} overrides
       reset_noise_scale   reset noise scale
-      randomization       {mass, friction, damping} half-widths of domain randomisation
+      randomization       {mass, friction, damping, gain} half-widths of domain randomisation
+                          (each over the env's default)
       solver_iterations   constraint solver iterations
       integrator          "euler", "rk4" or "implicitfast"
       timestep            physics timestep

