@@ -130,15 +130,29 @@ class Go1Joystick(Env):
     def _sample_task(self, key, model, data):
         k1, k2, k3 = jax.random.split(key, 3)
         dtype = data.qpos.dtype
+        command = self._draw_command(k1, dtype)
         return {
-            "command": self._draw_command(k1, dtype),
+            "command": command,
             "resample_in": self._steps_to_resample(k2),
             "last_action": jnp.zeros(model.nu, dtype),
             "air_time": jnp.zeros(4, dtype),
             "last_contact": jnp.zeros(4, bool),
             "swing_peak": jnp.zeros(4, dtype),
             "noise": self._noise(k3, dtype),
+            "marker": self._marker(data, command),
         }
+
+    def _marker(self, data, command):
+        """A point the viewer marks: where the commanded planar velocity would carry the trunk in
+        half a second, 0.3 m above it."""
+        heading = data.xmat[self._trunk][:, 0] * jnp.array([1.0, 1.0, 0.0], data.xmat.dtype)
+        heading = heading / jnp.maximum(jnp.linalg.norm(heading), 1e-9)
+        side = jnp.stack([-heading[1], heading[0], 0.0 * heading[2]])
+        lift = jnp.array([0.0, 0.0, 0.3], data.xmat.dtype)
+        return data.xpos[self._trunk] + 0.5 * (command[0] * heading + command[1] * side) + lift
+
+    def markers(self, task):
+        return task["marker"][None]
 
     def _noise(self, key, dtype):
         scale = jnp.repeat(
@@ -235,14 +249,16 @@ class Go1Joystick(Env):
         keep = jax.random.bernoulli(k_keep, 0.5, (3,))
         on = jax.random.bernoulli(k_on, jnp.asarray(self.command_nonzero, q.dtype))
         fresh = self._draw_command(k_cmd, q.dtype) * on
+        next_command = jnp.where(due & ~keep, fresh, command)
         task = {
-            "command": jnp.where(due & ~keep, fresh, command),
+            "command": next_command,
             "resample_in": jnp.where(due, self._steps_to_resample(k_time), task["resample_in"] - 1),
             "last_action": action,
             "air_time": air_time * ~touching,
             "last_contact": touching,
             "swing_peak": swing_peak * ~touching,
             "noise": self._noise(k_noise, q.dtype),
+            "marker": self._marker(after, next_command),
         }
         speed = jnp.linalg.norm(local[:2])
         extra = {"command_speed": jnp.linalg.norm(command[:2]), "speed": speed, "fell": fell.astype(q.dtype)}

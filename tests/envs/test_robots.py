@@ -52,6 +52,9 @@ def test_go1_joystick_api_and_rewards(go1):
     cmd = np.asarray(last.task["command"])
     assert (np.abs(cmd) <= np.asarray(env.command_limits) + 1e-6).all()
     assert np.ptp(np.asarray(last.params["gain_scale"]), axis=0).min() > 0
+    # the viewer's marker: half a second along the command, above the trunk
+    mark = np.asarray(jax.vmap(env.markers)(last.task))
+    assert mark.shape == (8, 1, 3) and (mark[:, 0, 2] > np.asarray(last.data.qpos)[:, 2]).all()
 
 
 def test_go1_joystick_auto_resets_to_fresh_commands_and_is_deterministic(go1):
