@@ -384,7 +384,7 @@ class Env:
         params = {}
         if not r.enabled:
             return params
-        k1, k2, k3, k4 = jax.random.split(key, 4)
+        k1, k2, k3 = jax.random.split(key, 3)  # the gain's key folds in: earlier draws unchanged
         dtype = m.body_mass.dtype
         if r.mass:
             params["mass_scale"] = jax.random.uniform(k1, (m.nbody,), dtype, 1 - r.mass, 1 + r.mass)
@@ -393,6 +393,7 @@ class Env:
         if r.damping:
             params["damping_scale"] = jax.random.uniform(k3, (m.nv,), dtype, 1 - r.damping, 1 + r.damping)
         if r.gain:
+            k4 = jax.random.fold_in(key, 4)
             params["gain_scale"] = jax.random.uniform(k4, (m.nu,), dtype, 1 - r.gain, 1 + r.gain)
         return params
 
