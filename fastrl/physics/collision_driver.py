@@ -96,7 +96,8 @@ def _hull_buckets(m: Model, idx: np.ndarray) -> np.ndarray:
 
 
 def pair_groups(m: Model) -> list[tuple[tuple[int, int], np.ndarray]]:
-    """Pair indices grouped by geom-type pair (and, with meshes, by hull size), in a fixed order."""
+    """Pair indices grouped by geom-type pair (and, with meshes, by hull size; with MJX's
+    ``max_geom_pairs``, by condim), in a fixed order."""
     t1, t2 = m.geom_type[m.pair_geom1], m.geom_type[m.pair_geom2]
     groups = []
     for key in SUPPORTED:
@@ -109,9 +110,11 @@ def pair_groups(m: Model) -> list[tuple[tuple[int, int], np.ndarray]]:
             continue
         if GeomType.MESH in key:
             bucket = _hull_buckets(m, idx)
-            groups.extend((key, idx[bucket == size]) for size in np.unique(bucket))
+        elif capped(m, key):  # MJX caps each group of one type pair and one condim
+            bucket = m.pair_condim[idx]
         else:
-            groups.append((key, idx))
+            bucket = np.zeros(idx.size, np.int64)
+        groups.extend((key, idx[bucket == b]) for b in np.unique(bucket))
     return groups
 
 
@@ -133,20 +136,53 @@ def _keep(k: int, score: jax.Array, args: tuple, axes: tuple) -> tuple:
     return score, chosen, tuple(a if ax is None else take(a) for a, ax in zip(args, axes, strict=True))
 
 
+def _overlap(m: Model, d: Data, idx: np.ndarray) -> jax.Array:
+    """(n,) how far each pair's bounding spheres, grown by its margin, overlap (< 0: apart)."""
+    g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
+    reach = m.geom_rbound[g1] + m.geom_rbound[g2] + m.pair_margin[idx]
+    return reach - jnp.linalg.norm(d.geom_xpos[g1] - d.geom_xpos[g2], axis=-1)
+
+
+def _spread(n: int, chosen: jax.Array, out: tuple) -> tuple:
+    """The contacts of the ``chosen`` pairs of a group put back in the group's layout of ``n``
+    pairs; the pairs not collided get no contact (``_FAR``, normal +z)."""
+    if chosen.size == n:
+        return out
+    full = lambda x, fill: jnp.full((n,) + x.shape[1:], fill, x.dtype).at[chosen].set(x)  # noqa: E731
+    dist, pos, normal, tangent = out
+    dist, pos, normal, tangent = full(dist, prim._FAR), full(pos, 0.0), full(normal, 0.0), full(tangent, 0.0)
+    normal = normal.at[..., 2].set(jnp.where(dist < prim._FAR, normal[..., 2], 1.0))
+    return dist, pos, normal, tangent
+
+
+def capped(m: Model, key: tuple) -> bool:
+    """Whether MJX's ``max_geom_pairs`` applies to a type pair (planes and height fields never)."""
+    return m.max_geom_pairs > 0 and not {GeomType.PLANE, GeomType.HFIELD} & set(key[:2])
+
+
+def _broadphase(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes: tuple):
+    """A group's contacts with MJX's ``max_geom_pairs``: only the pairs whose bounding spheres
+    overlap most are collided."""
+    _, chosen, args = _keep(m.max_geom_pairs, _overlap(m, d, idx), args, axes)
+    return _spread(idx.size, chosen, jax.vmap(fn, axes)(*args))
+
+
 def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes: tuple):
     """A GJK/EPA group's contacts, in three stages, each pair's result as if solved alone:
 
     1. bounding spheres: the pairs whose spheres (grown by the margin) overlap most are kept
-       (``gjk_slots``); the rest, and any whose spheres do not overlap, get no contact (``_FAR``);
+       (``gjk_slots``, or MJX's ``max_geom_pairs`` if fewer); the rest, and any whose spheres do
+       not overlap, get no contact (``_FAR``);
     2. GJK's separation of each kept pair: the closest are kept, and of those, a pair at least its
        margin apart gets no contact;
     3. EPA and the multi-contact search for the kept pairs, only when some pair is within its
        margin (``lax.cond``: one env skips the stage, a vmapped batch runs it if any env needs it).
     """
-    g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
-    reach = m.geom_rbound[g1] + m.geom_rbound[g2] + m.pair_margin[idx]
-    overlap = reach - jnp.linalg.norm(d.geom_xpos[g1] - d.geom_xpos[g2], axis=-1)
+    overlap = _overlap(m, d, idx)
     k1, k2 = gjk_slots(idx.size)
+    if capped(m, key):
+        k1 = min(k1, m.max_geom_pairs)
+        k2 = min(k2, k1)
     chosen = jnp.arange(idx.size)
     if k1 < idx.size:
         overlap, chosen, args = _keep(k1, overlap, args, axes)
@@ -163,16 +199,7 @@ def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes:
     solve = lambda a: jax.vmap(fn, axes)(*a)  # noqa: E731
     dist, pos, normal, tangent = jax.lax.cond(jnp.any(near), solve, lambda a: far, args)
     dist = jnp.where(near[:, None], dist, prim._FAR)
-    if k2 < idx.size:
-        full = lambda x, fill: jnp.full((idx.size,) + x.shape[1:], fill, x.dtype).at[chosen].set(x)  # noqa: E731
-        dist, pos, normal, tangent = (
-            full(dist, prim._FAR),
-            full(pos, 0.0),
-            full(normal, 0.0),
-            full(tangent, 0.0),
-        )
-        normal = normal.at[..., 2].set(jnp.where(dist < prim._FAR, normal[..., 2], 1.0))
-    return dist, pos, normal, tangent
+    return _spread(idx.size, chosen, (dist, pos, normal, tangent))
 
 
 def _window(m: Model, idx: np.ndarray) -> tuple[int, int]:
@@ -297,6 +324,8 @@ def collision(m: Model, d: Data) -> Data:
             fn = gjk.convex_pair(*key[:2], multi=False)
         if key in GJK_PAIRS:  # bounding spheres and GJK first
             dist, pos, normal, tangent = _cull(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
+        elif capped(m, key) and idx.size > m.max_geom_pairs:
+            dist, pos, normal, tangent = _broadphase(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
         else:
             dist, pos, normal, tangent = jax.vmap(fn, (0,) * 6 + axes)(*poses, *extra)
         dists.append(dist.reshape(-1))

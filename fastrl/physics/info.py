@@ -35,14 +35,24 @@ def _collision(m: Model) -> str:
             how = f"{each} each"
         entry = parts.setdefault(f"{name} ({how}", [0, 0, 0])
         entry[0] += idx.size
+        cap = m.max_geom_pairs if collision_driver.capped(m, key) else idx.size
         if key in collision_driver.GJK_PAIRS:
             gjk, epa = collision_driver.gjk_slots(idx.size)
-            entry[1] += gjk
-            entry[2] += epa
+            entry[1] += min(gjk, cap)
+            entry[2] += min(epa, gjk, cap)
+        else:
+            entry[1] += min(idx.size, cap)
     out = []
-    for label, (n, gjk, epa) in parts.items():
-        culled = f"; GJK on {gjk}, EPA on {epa} per step)" if gjk and epa < n else ")"
+    for label, (n, kept, epa) in parts.items():
+        if epa and epa < n:
+            culled = f"; GJK on {kept}, EPA on {epa} per step)"
+        elif not epa and kept < n:
+            culled = f"; {kept} collided per step)"
+        else:
+            culled = ")"
         out.append(f"{n} {label}{culled}")
+    if m.max_geom_pairs > 0:
+        out.append(f"MJX's max_geom_pairs {m.max_geom_pairs} per pair group")
     return ", ".join(out) or "none"
 
 

@@ -343,6 +343,17 @@ DEFAULT_SOLVER_ITERATIONS = 8
 SOLVER_ITERATIONS_NUMERIC = "fastrl_solver_iterations"
 
 
+def _numeric(m: mujoco.MjModel, name: str) -> int:
+    """A whole-number ``<custom><numeric>`` of the model, or -1 where it has none."""
+    i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, name)
+    if i < 0:
+        return -1
+    value = float(m.numeric_data[m.numeric_adr[i]])
+    if value != int(value) or value < 1:
+        raise ValueError(f"custom numeric {name}={value}; use a whole number >= 1")
+    return int(value)
+
+
 def asset_solver_iterations(m: mujoco.MjModel) -> int:
     """The model's own solver iteration count: its custom numeric, else its ``<option
     iterations>`` where that is below ``DEFAULT_SOLVER_ITERATIONS``, else the default.
@@ -352,16 +363,22 @@ def asset_solver_iterations(m: mujoco.MjModel) -> int:
     scenes set 1 or 3) is stepped with that budget, as MJX steps it: at 8 iterations the
     feet-only H1 parted from MuJoCo C by 5e-3 in qpos within 10 steps, at its own 1 by 2e-15.
     """
-    i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, SOLVER_ITERATIONS_NUMERIC)
-    if i < 0:
-        return max(1, min(int(m.opt.iterations), DEFAULT_SOLVER_ITERATIONS))
-    value = float(m.numeric_data[m.numeric_adr[i]])
-    if value != int(value) or value < 1:
-        raise ValueError(f"custom numeric {SOLVER_ITERATIONS_NUMERIC}={value}; use a whole number >= 1")
-    return int(value)
+    named = _numeric(m, SOLVER_ITERATIONS_NUMERIC)
+    return named if named > 0 else max(1, min(int(m.opt.iterations), DEFAULT_SOLVER_ITERATIONS))
 
 
 LINESEARCHES = ("exact", "mujoco")
+
+# MJX's broad-phase caps, which MuJoCo Playground's hand and full-collision scenes set in
+# <custom>: at most MAX_GEOM_PAIRS pairs of each pair group are collided (those whose bounding
+# spheres overlap most) and at most MAX_CONTACT_POINTS contacts of each condim get rows (the
+# deepest). MuJoCo C ignores them.
+MAX_GEOM_PAIRS, MAX_CONTACT_POINTS = "max_geom_pairs", "max_contact_points"
+
+
+def scene_mjx_caps(m: mujoco.MjModel) -> tuple[int, int]:
+    """The scene's ``(max_geom_pairs, max_contact_points)``, -1 for each it does not set."""
+    return _numeric(m, MAX_GEOM_PAIRS), _numeric(m, MAX_CONTACT_POINTS)
 
 
 def asset_linesearch(m: mujoco.MjModel) -> str:
@@ -544,12 +561,35 @@ def _default_slots(m: mujoco.MjModel, pairs: list[tuple[int, int]], geometry: di
     return default_nconmax(other) + terrain
 
 
+def _contact_fields(m: mujoco.MjModel, nconmax: int | None, mjx_caps: bool) -> dict:
+    """``Model``'s pair table (each pair's geoms, mixed parameters and shape data), its contact
+    slots and MJX's pair cap."""
+    pairs = candidate_geom_pairs(m) if contacts_enabled(m) else []
+    mixed = _mix_pair_params(m, pairs)
+    g1 = np.array([p[0] for p in pairs], np.int32)
+    g2 = np.array([p[1] for p in pairs], np.int32)
+    geometry = _geometry_fields(m, pairs) | _faceclip(m, g1, g2, mixed["margin"])
+    max_pairs, max_points = scene_mjx_caps(m) if mjx_caps else (-1, -1)
+    if nconmax is None:  # <size nconmax>, else MJX's max_contact_points, else the rule
+        named = [n for n in (m.nconmax, max_points) if n > 0]
+        nconmax = named[0] if named else _default_slots(m, pairs, geometry)
+    f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
+    return dict(
+        **geometry, pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"],
+        nconmax=int(nconmax), max_geom_pairs=int(max_pairs),
+        pair_friction=f(mixed["friction"]), pair_solref=f(mixed["solref"]),
+        pair_solimp=f(mixed["solimp"]), pair_solreffriction=f(mixed["solreffriction"]),
+        pair_margin=f(mixed["margin"]), pair_gap=f(mixed["gap"]),
+    )  # fmt: skip
+
+
 def model_from_mujoco(
     m: mujoco.MjModel,
     integrator: str | None = None,
     solver_iterations: int | None = None,
     nconmax: int | None = None,
     linesearch: str | None = None,
+    mjx_caps: bool = True,
 ) -> Model:
     """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
     integ, solver_iterations = _checked(m, integrator, solver_iterations, nconmax)
@@ -558,13 +598,6 @@ def model_from_mujoco(
     if linesearch not in LINESEARCHES:
         raise ValueError(f"linesearch={linesearch!r}; choose one of {LINESEARCHES}")
     obj = mujoco.mjtObj
-    pairs = candidate_geom_pairs(m) if contacts_enabled(m) else []
-    mixed = _mix_pair_params(m, pairs)
-    g1 = np.array([p[0] for p in pairs], np.int32)
-    g2 = np.array([p[1] for p in pairs], np.int32)
-    geometry = _geometry_fields(m, pairs) | _faceclip(m, g1, g2, mixed["margin"])
-    if nconmax is None:
-        nconmax = m.nconmax if m.nconmax > 0 else _default_slots(m, pairs, geometry)
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
     eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
@@ -572,7 +605,7 @@ def model_from_mujoco(
     gravity = m.opt.gravity * (0.0 if m.opt.disableflags & _DSBL.mjDSBL_GRAVITY else 1.0)
     return Model(
         nq=m.nq, nv=m.nv, nu=m.nu, nbody=m.nbody, njnt=m.njnt, ngeom=m.ngeom, nsite=m.nsite,
-        **_tendon_fields(m), **geometry,
+        **_tendon_fields(m), **_contact_fields(m, nconmax, mjx_caps),
         body_parentid=i32(m.body_parentid), body_rootid=i32(m.body_rootid),
         body_jntnum=i32(m.body_jntnum), body_jntadr=i32(m.body_jntadr),
         body_dofnum=i32(m.body_dofnum), body_dofadr=i32(m.body_dofadr),
@@ -590,10 +623,10 @@ def model_from_mujoco(
         actuator_ctrllimited=i32(m.actuator_ctrllimited),
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
-        pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"], cone=int(m.opt.cone),
+        cone=int(m.opt.cone),
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
-        solver_iterations=int(solver_iterations), nconmax=int(nconmax), linesearch=linesearch,
+        solver_iterations=int(solver_iterations), linesearch=linesearch,
         ls_iterations=int(m.opt.ls_iterations), solver_tolerance=float(m.opt.tolerance),
         ls_tolerance=float(m.opt.ls_tolerance), meaninertia=float(m.stat.meaninertia),
         ntree=max(1, int(m.ntree)), dof_treeid=i32(np.maximum(m.dof_treeid, 0)),
@@ -615,9 +648,6 @@ def model_from_mujoco(
         actuator_gear=f(m.actuator_gear), actuator_ctrlrange=f(m.actuator_ctrlrange),
         actuator_forcerange=f(m.actuator_forcerange),
         actuator_gainprm=f(m.actuator_gainprm), actuator_biasprm=f(m.actuator_biasprm),
-        pair_friction=f(mixed["friction"]), pair_solref=f(mixed["solref"]),
-        pair_solimp=f(mixed["solimp"]), pair_solreffriction=f(mixed["solreffriction"]),
-        pair_margin=f(mixed["margin"]), pair_gap=f(mixed["gap"]),
         jnt_solref=f(m.jnt_solref), jnt_solimp=f(m.jnt_solimp), jnt_margin=f(m.jnt_margin),
         eq_data=f(m.eq_data[eqs]), eq_solref=f(m.eq_solref[eqs]), eq_solimp=f(m.eq_solimp[eqs]),
         body_invweight0=f(m.body_invweight0), dof_invweight0=f(m.dof_invweight0),
@@ -632,6 +662,7 @@ def load_mjcf(
     solver_iterations: int | None = None,
     nconmax: int | None = None,
     linesearch: str | None = None,
+    mjx_caps: bool = True,
 ) -> Model:
     """Compiles an MJCF file (or XML string) with MuJoCo's compiler into a fastrl ``Model``.
 
@@ -654,10 +685,17 @@ def load_mjcf(
         (a scene with few ``iterations``) stops where MuJoCo's does. ``"exact"``: each Newton step
         takes an exact line search, the faster choice for a fixed budget of iterations that
         converges (fastrl's own environments).
+      mjx_caps: honour the broad-phase caps MJX reads from the scene's ``<custom>`` numerics, as
+        MuJoCo Playground's hand and full-collision scenes set them: ``max_geom_pairs`` (each
+        pair group collides only that many pairs, those whose bounding spheres overlap most;
+        planes and height fields are never culled) and ``max_contact_points`` (the default
+        ``nconmax``). MuJoCo C ignores both, so where a cap binds the two engines part; pass
+        ``False`` to collide every candidate pair as MuJoCo C does.
     Returns:
       The ``Model``; float parameters are float32 unless ``jax_enable_x64`` is on.
     """
-    return model_from_mujoco(_compile(path_or_xml), integrator, solver_iterations, nconmax, linesearch)
+    m = _compile(path_or_xml)
+    return model_from_mujoco(m, integrator, solver_iterations, nconmax, linesearch, mjx_caps)
 
 
 def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:

@@ -120,6 +120,10 @@ class Model:
       ntree, dof_treeid                        kinematic trees and each dof's (islands)
       nconmax                                  contact slots: rows exist for the nconmax deepest
                                                candidate contacts (per condim group)
+      max_geom_pairs                           MJX's broad-phase cap (-1: none): each pair group
+                                               collides only this many pairs, those whose
+                                               bounding spheres overlap most (not planes or
+                                               height fields)
       integrator                               Integrator
       disableflags                             MuJoCo's mjtDisableBit mask
       body_names, jnt_names, geom_names, site_names, actuator_names   tuples of str
@@ -237,6 +241,7 @@ class Model:
     ntree: int
     dof_treeid: np.ndarray
     nconmax: int
+    max_geom_pairs: int
     integrator: int
     disableflags: int
     body_names: tuple

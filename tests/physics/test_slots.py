@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from fastrl import physics
-from fastrl.physics import constraint
+from fastrl.physics import collision_driver, constraint
 
 fwd = importlib.import_module("fastrl.physics.forward")
 ANT = str(pathlib.Path(physics.__file__).parents[1] / "assets" / "ant.xml")
@@ -92,3 +92,39 @@ def test_bad_slot_counts_and_narrow_ranges_are_refused():
     )
     with pytest.raises(physics.UnsupportedFeatureError, match="narrower than twice its margin"):
         physics.load_mjcf(xml)
+
+
+def _box_row(max_geom_pairs: int) -> str:
+    """Five free cubes in a row, each pressed into the next by 5-20 mm (centres 0.18-0.195 apart),
+    with MJX's broad-phase caps in ``<custom>``."""
+    xs = np.cumsum([0.0, 0.19, 0.185, 0.195, 0.18])
+    bodies = "".join(f'<body pos="{x} 0 1"><freejoint/><geom type="box" size=".1 .1 .1"/></body>' for x in xs)
+    return (
+        f'<mujoco><custom><numeric name="max_geom_pairs" data="{max_geom_pairs}"/>'
+        '<numeric name="max_contact_points" data="20"/></custom>'
+        f"<worldbody>{bodies}</worldbody></mujoco>"
+    )
+
+
+def test_mjx_caps_collide_the_closest_pairs_and_size_the_slots(x64):
+    """MJX's ``max_geom_pairs`` collides only the pairs whose bounding spheres overlap most, and
+    ``max_contact_points`` sets the contact slots; where the caps do not bind the step is MuJoCo
+    C's, and ``mjx_caps=False`` ignores them."""
+    # 10 box-box pairs, the 4 neighbours touching: a cap of 6 does not bind
+    mj = mujoco.MjModel.from_xml_string(_box_row(6))
+    m = physics.model_from_mujoco(mj)
+    assert (m.max_geom_pairs, m.nconmax) == (6, 20)
+    md = mujoco.MjData(mj)
+    mujoco.mj_forward(mj, md)
+    d = jax.jit(lambda d: fwd.forward(m, d))(_data(m, md))
+    assert int(d.ncon) == md.ncon > 4
+    np.testing.assert_allclose(d.qacc, md.qacc, rtol=1e-6, atol=1e-6)
+    uncapped = physics.model_from_mujoco(mj, mjx_caps=False)
+    assert uncapped.max_geom_pairs == -1 and uncapped.nconmax == constraint.default_nconmax(80)
+
+    # a cap of 2: only the two closest neighbours (centres 0.18 and 0.185 apart) touch
+    m = physics.load_mjcf(_box_row(2))
+    d = jax.jit(lambda d: fwd.forward(m, d))(physics.make_data(m))
+    layout = collision_driver.contact_layout(m)
+    touching = {(int(m.pair_geom1[p]), int(m.pair_geom2[p])) for p in layout[np.asarray(d.contact_dist) < 0]}
+    assert touching == {(1, 2), (3, 4)}
