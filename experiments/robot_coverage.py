@@ -80,9 +80,12 @@ QUICK_SCENES = (
 )
 _PREFIX = "fastrl cannot simulate this model yet: "
 CONVERGED_ITERATIONS = 30
+# load_mjcf's mjx_caps for every fastrl model of the run (--no-mjx-caps: collide every pair)
+MODEL_OPTIONS = {"mjx_caps": True}
 VARIANTS = {  # the tracking comparisons: what each runs
     "default": "fastrl as `load_mjcf` builds it (MuJoCo's Newton algorithm, the scene's `iterations` "
-    "capped at fastrl's default count) beside MuJoCo C stepping the scene as written",
+    "capped at fastrl's default count, the MJX caps `max_geom_pairs` and `max_contact_points` where the "
+    "scene sets them, unless the run says `--no-mjx-caps`) beside MuJoCo C stepping the scene as written",
     "scene": "the same at the scene's own `<option iterations>`, uncapped",
     "exact": "fastrl's fixed-budget solver (`linesearch='exact'`: exact line searches, no early exit) "
     "at the default count beside MuJoCo C as written (a truncated solve depends on where each line "
@@ -181,7 +184,7 @@ def _load(
         name, mj.nq, mj.nv, mj.nu, mj.ngeom, mujoco.mjtIntegrator(mj.opt.integrator).name[6:], "loads"
     )
     try:
-        return row, mj, physics.model_from_mujoco(mj)
+        return row, mj, physics.model_from_mujoco(mj, **MODEL_OPTIONS)
     except physics.UnsupportedFeatureError as err:
         row.status = "refused"
         row.reasons = _reasons(err)
@@ -264,7 +267,7 @@ def _float32(row: SceneResult, mj: mujoco.MjModel, args) -> None:
     """fastrl in float32 (as it trains): the root's largest distance from MuJoCo C's (float64) over
     the tracking horizon, then ``args.random_steps`` steps of random controls that must stay finite."""
     with jax.enable_x64(False):
-        model = physics.model_from_mujoco(mj)
+        model = physics.model_from_mujoco(mj, **MODEL_OPTIONS)
         run = _chunk_fn(model)
         root = _root_body_qpos(mj)
         if root is not None:
@@ -376,12 +379,14 @@ def _track(row: SceneResult, mj: mujoco.MjModel, model: physics.Model, args) -> 
         "default": lambda: (mj, model),
         "scene": lambda: (
             mj,
-            physics.model_from_mujoco(mj, solver_iterations=row.solver_iterations["scene"]),
+            physics.model_from_mujoco(mj, **MODEL_OPTIONS, solver_iterations=row.solver_iterations["scene"]),
         ),
-        "exact": lambda: (mj, physics.model_from_mujoco(mj, linesearch="exact")),
+        "exact": lambda: (mj, physics.model_from_mujoco(mj, **MODEL_OPTIONS, linesearch="exact")),
         "converged": lambda: (
             _converged(mj),
-            physics.model_from_mujoco(mj, solver_iterations=CONVERGED_ITERATIONS, linesearch="exact"),
+            physics.model_from_mujoco(
+                mj, **MODEL_OPTIONS, solver_iterations=CONVERGED_ITERATIONS, linesearch="exact"
+            ),
         ),
     }
     for key in variants:
@@ -398,7 +403,7 @@ def _throughput(row: SceneResult, path: pathlib.Path, mj: mujoco.MjModel, args) 
 
     d_mj, _ = _initial(mj)
     with jax.enable_x64(False):
-        model = physics.load_mjcf(str(path), linesearch=args.linesearch)
+        model = physics.load_mjcf(str(path), linesearch=args.linesearch, **MODEL_OPTIONS)
         d0 = physics.make_data(model, qpos=d_mj.qpos.copy(), qvel=d_mj.qvel.copy(), ctrl=d_mj.ctrl.copy())
         batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), d0)
 
@@ -634,6 +639,11 @@ def main() -> None:
         choices=["mujoco", "exact"],
         help="the solver fastrl's throughput runs (default: load_mjcf's)",
     )
+    parser.add_argument(
+        "--no-mjx-caps",
+        action="store_true",
+        help="ignore the scenes' MJX caps (max_geom_pairs, max_contact_points): collide every pair",
+    )
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     parser.add_argument(
         "--meshes-off",
@@ -657,6 +667,7 @@ def main() -> None:
     if args.quick:  # as written and converged only: two compiles fewer
         args.seconds, args.random_steps, args.chunk, args.budget = 0.1, 40, 20, 0.0
         args.variants = [v for v in args.variants if v in ("default", "converged")]
+    MODEL_OPTIONS["mjx_caps"] = not args.no_mjx_caps
     fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     jax.config.update("jax_enable_x64", True)
     paths = robot_scenes.scene_paths()
@@ -680,6 +691,7 @@ def main() -> None:
         "batch": args.batch,
         "variants": args.variants,
         "meshes_off": args.meshes_off,
+        "mjx_caps": not args.no_mjx_caps,
         "throughput_only": args.throughput_only,
         "throughput_steps": args.throughput_steps,
     }
