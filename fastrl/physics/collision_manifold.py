@@ -306,8 +306,10 @@ def faces_pair(type1: int, type2: int):
         support1 = lambda d: gjk.support_vertex(type1, pos1, mat1, size1, mesh1[0], d)  # noqa: E731
         support2 = lambda d: gjk.support_vertex(type2, pos2, mat2, size2, mesh2[0], d)  # noqa: E731
         dist, w1, w2, simplex, _ = gjk.gjk(support1, support2, pos1 - pos2, gjk.GJK_ITERATIONS)
-        depth, n_deep, d1, d2, (va, vb, ia, ib) = gjk.epa(support1, support2, simplex, gjk.EPA_ITERATIONS)
         apart = dist > 0
+        depth, n_deep, d1, d2, (va, vb, ia, ib) = gjk.epa(
+            support1, support2, simplex, gjk.EPA_ITERATIONS, skip=apart
+        )
         gap = w2 - w1
         normal = jnp.where(apart, gap / jnp.where(apart, jnp.linalg.norm(gap), 1.0), n_deep)
         x1, x2 = jnp.where(apart, w1, d1), jnp.where(apart, w2, d2)
