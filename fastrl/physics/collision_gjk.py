@@ -141,7 +141,21 @@ def _until_done(iterations: int, step, state: tuple) -> tuple:
     return jax.lax.while_loop(more, body, (jnp.zeros((), jnp.int32), state))[1]
 
 
-def gjk(support_a, support_b, start, iterations: int):
+def _fixed(iterations: int, step, state: tuple) -> tuple:
+    """``_until_done`` as a loop of fixed count, which reverse-mode differentiation can run."""
+    return jax.lax.fori_loop(0, iterations, step, state)
+
+
+def stops_when_done(make):
+    """``make(loop)``'s function (of arrays only) with its GJK/EPA loops stopping when converged
+    (``_until_done``), differentiated as ``make(_fixed)``: the same values, from loops that
+    reverse-mode differentiation can run (a ``while_loop`` has no transpose)."""
+    fast, fixed = jax.custom_jvp(make(_until_done)), make(_fixed)
+    fast.defjvp(lambda primals, tangents: jax.jvp(fixed, primals, tangents))
+    return fast
+
+
+def gjk(support_a, support_b, start, iterations: int, loop=_until_done):
     """Distance between shapes A and B (support functions of a world direction) by GJK.
 
     Returns ``(dist, witness_a, witness_b, simplex, used)``: ``dist`` 0 when the origin lies in
@@ -177,23 +191,31 @@ def gjk(support_a, support_b, start, iterations: int):
                 keep(ia.at[slot].set(i), ia), keep(ib.at[slot].set(j), ib),
                 keep(new_used, used), keep(new_weights, weights), done)  # fmt: skip
 
-    points, sa, sb, ia, ib, used, weights, _ = _until_done(iterations, step, state)
+    points, sa, sb, ia, ib, used, weights, _ = loop(iterations, step, state)
     x = weights @ points
     dist = jnp.linalg.norm(x)
     inside = (jnp.sum(used) == 4) | (dist < 1e-15)
     return jnp.where(inside, 0.0, dist), weights @ sa, weights @ sb, (points, sa, sb, ia, ib), used
 
 
+def _nonzero_norm(x, floor: float):
+    """``|x|`` along the last axis (kept), or 1 where it is at most ``floor``: a divisor that
+    leaves a degenerate ``x`` as it is, with a finite derivative there too (``jnp.linalg.norm``'s
+    is NaN at zero, which a ``where`` downstream does not mask in reverse mode)."""
+    sq = jnp.sum(x * x, axis=-1, keepdims=True)
+    big = sq > floor * floor
+    return jnp.where(big, jnp.sqrt(jnp.where(big, sq, 1.0)), 1.0)
+
+
 def _face_plane(v, faces):
     """Unit outward normals (F, 3) and origin distances (F,) of triangles ``faces`` of points ``v``."""
     a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
     n = jnp.cross(b - a, c - a)
-    norm = jnp.linalg.norm(n, axis=-1, keepdims=True)
-    n = n / jnp.where(norm > 1e-30, norm, 1.0)
+    n = n / _nonzero_norm(n, 1e-30)
     return n, jnp.sum(n * a, axis=-1)
 
 
-def epa(support_a, support_b, simplex, iterations: int, skip=False):
+def epa(support_a, support_b, simplex, iterations: int, skip=False, loop=_until_done):
     """Penetration of overlapping shapes from GJK's enclosing tetrahedron: ``(depth, normal,
     witness_a, witness_b, face)``, the normal pointing from A to B (moving B by ``depth * normal``
     separates them); ``face``: the final nearest face's three points on A and on B (3, 3) and
@@ -260,7 +282,7 @@ def epa(support_a, support_b, simplex, iterations: int, skip=False):
                 keep(faces2, faces), keep(adj2, adj), keep(alive2, alive), done)  # fmt: skip
 
     state = (v, va, vb, ia, ib, faces, adj, alive, jnp.asarray(skip))
-    v, va, vb, ia, ib, faces, _, alive, _ = _until_done(iterations, step, state)
+    v, va, vb, ia, ib, faces, _, alive, _ = loop(iterations, step, state)
     n, dist = _face_plane(v, faces)
     best = jnp.argmin(jnp.where(alive, dist, jnp.inf))
     tri = faces[best]
@@ -341,14 +363,18 @@ def single_contact(type1: int, type2: int):
     the normal from the first to the second."""
     epa_iterations = EPA_ITERATIONS_CURVED if {type1, type2} & set(_CURVED) else EPA_ITERATIONS
 
-    def contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2):
+    @stops_when_done
+    def make(loop):
+        return lambda *args: contact(*args, loop=loop)
+
+    def contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, loop):
         support1 = lambda d: support_vertex(type1, pos1, mat1, size1, verts1, d)  # noqa: E731
         support2 = lambda d: support_vertex(type2, pos2, mat2, size2, verts2, d)  # noqa: E731
-        dist, w1, w2, simplex, _ = gjk(support1, support2, pos1 - pos2, GJK_ITERATIONS)
+        dist, w1, w2, simplex, _ = gjk(support1, support2, pos1 - pos2, GJK_ITERATIONS, loop)
         apart = dist > 0
-        depth, n_deep, d1, d2, _ = epa(support1, support2, simplex, epa_iterations, skip=apart)
+        depth, n_deep, d1, d2, _ = epa(support1, support2, simplex, epa_iterations, apart, loop)
         gap = w2 - w1
-        n_apart = gap / jnp.where(apart, jnp.linalg.norm(gap), 1.0)
+        n_apart = gap / jnp.where(apart, _nonzero_norm(gap, 0.0)[0], 1.0)
         normal = jnp.where(apart, n_apart, n_deep)
         r1, r2 = core_radius(type1, size1), core_radius(type2, size2)
         x1 = jnp.where(apart, w1, d1) + r1 * normal
@@ -356,7 +382,7 @@ def single_contact(type1: int, type2: int):
         dist = jnp.where(apart, dist, -depth) - r1 - r2
         return dist, 0.5 * (x1 + x2), normal
 
-    return contact
+    return make
 
 
 def separation(type1: int, type2: int):
@@ -365,13 +391,17 @@ def separation(type1: int, type2: int):
     when they overlap. A pair whose separation is at least its margin gets no contact, so the
     driver runs EPA and the multi-contact search only when some pair is closer."""
 
-    def dist(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2):
+    @stops_when_done
+    def make(loop):
+        return lambda *args: dist(*args, loop=loop)
+
+    def dist(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, loop):
         support1 = lambda d: support_vertex(type1, pos1, mat1, size1, verts1, d)  # noqa: E731
         support2 = lambda d: support_vertex(type2, pos2, mat2, size2, verts2, d)  # noqa: E731
-        gap = gjk(support1, support2, pos1 - pos2, GJK_ITERATIONS)[0]
+        gap = gjk(support1, support2, pos1 - pos2, GJK_ITERATIONS, loop)[0]
         return jnp.where(gap > 0, gap - core_radius(type1, size1) - core_radius(type2, size2), -jnp.inf)
 
-    return dist
+    return make
 
 
 def convex_pair(type1: int, type2: int, multi: bool = True):

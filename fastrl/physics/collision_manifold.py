@@ -303,12 +303,19 @@ def faces_pair(type1: int, type2: int):
 
     def collide(pos1, mat1, size1, pos2, mat2, size2, mesh1, mesh2, margin, rbound, *, tables):
         del margin, rbound  # zero margin only; no perturbation
+        return clipped(pos1, mat1, size1, pos2, mat2, size2, mesh1, mesh2, tables)
+
+    @gjk.stops_when_done
+    def clipped(loop):
+        return lambda *args: clip(*args, loop=loop)
+
+    def clip(pos1, mat1, size1, pos2, mat2, size2, mesh1, mesh2, tables, loop):
         support1 = lambda d: gjk.support_vertex(type1, pos1, mat1, size1, mesh1[0], d)  # noqa: E731
         support2 = lambda d: gjk.support_vertex(type2, pos2, mat2, size2, mesh2[0], d)  # noqa: E731
-        dist, w1, w2, simplex, _ = gjk.gjk(support1, support2, pos1 - pos2, gjk.GJK_ITERATIONS)
+        dist, w1, w2, simplex, _ = gjk.gjk(support1, support2, pos1 - pos2, gjk.GJK_ITERATIONS, loop)
         apart = dist > 0
         depth, n_deep, d1, d2, (va, vb, ia, ib) = gjk.epa(
-            support1, support2, simplex, gjk.EPA_ITERATIONS, skip=apart
+            support1, support2, simplex, gjk.EPA_ITERATIONS, apart, loop
         )
         gap = w2 - w1
         normal = jnp.where(apart, gap / jnp.where(apart, jnp.linalg.norm(gap), 1.0), n_deep)

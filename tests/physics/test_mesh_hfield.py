@@ -15,9 +15,12 @@ import pytest
 
 from fastrl import physics
 from fastrl.physics import collision_convex as convex
+from fastrl.physics import collision_gjk as gjk
 from fastrl.physics.collision_driver import contact_layout, gjk_slots
+from fastrl.physics.types import GeomType
 
 _RNG = np.random.default_rng(3)
+_RNG_GRAD = np.random.default_rng(11)
 _ROCK = _RNG.standard_normal((40, 3)) * [0.08, 0.05, 0.04]
 _CUBE = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (-0.05, 0.05)])
 
@@ -455,3 +458,24 @@ def test_culled_mesh_group_keeps_every_touching_pair(x64):
     assert max(len(t) for t in theirs) >= 6
     for t, o in zip(theirs, ours, strict=True):
         np.testing.assert_allclose(o, t, atol=1e-6)
+
+
+@pytest.mark.parametrize("types", [("mesh", "mesh"), ("box", "mesh"), ("cylinder", "cylinder")])
+def test_gjk_epa_contacts_are_differentiable(types, x64):
+    """GJK and EPA stop when converged (a ``while_loop``, which reverse mode cannot run), yet
+    ``jax.grad`` goes through them (``collision_gjk.stops_when_done``): the contact distance's
+    gradient with respect to the second geom's position equals central differences, overlapping
+    (EPA) and apart (GJK), and is finite."""
+    t1, t2 = (getattr(GeomType, t.upper()) for t in types)
+    contact = gjk.single_contact(t1, t2)
+    cube, size, eye = jnp.asarray(_CUBE), jnp.array([0.05, 0.05, 0.05]), jnp.eye(3)
+    rot = jnp.asarray(_RNG_GRAD.standard_normal((3, 3)))
+    mat = jnp.linalg.qr(rot)[0] * jnp.sign(jnp.linalg.det(jnp.linalg.qr(rot)[0]))
+    dist = lambda p: contact(jnp.zeros(3), eye, size, p, mat, size, cube, cube)[0]  # noqa: E731
+    for p in ([0.07, 0.02, 0.01], [0.09, -0.01, 0.03], [0.16, 0.02, 0.01]):
+        p = jnp.asarray(p)
+        grad = np.asarray(jax.grad(dist)(p))
+        assert np.isfinite(grad).all()
+        eps = 1e-7
+        fd = [(float(dist(p.at[i].add(eps))) - float(dist(p.at[i].add(-eps)))) / (2 * eps) for i in range(3)]
+        np.testing.assert_allclose(grad, fd, atol=1e-5)
