@@ -80,12 +80,12 @@ QUICK_SCENES = (
 )
 _PREFIX = "fastrl cannot simulate this model yet: "
 CONVERGED_ITERATIONS = 30
-# load_mjcf's mjx_caps for every fastrl model of the run (--no-mjx-caps: collide every pair)
-MODEL_OPTIONS = {"mjx_caps": True}
+# load_mjcf's mjx_caps for every fastrl model of the run (--mjx-caps: honour the scenes' MJX caps)
+MODEL_OPTIONS = {"mjx_caps": False}
 VARIANTS = {  # the tracking comparisons: what each runs
     "default": "fastrl as `load_mjcf` builds it (MuJoCo's Newton algorithm, the scene's `iterations` "
-    "capped at fastrl's default count, the MJX caps `max_geom_pairs` and `max_contact_points` where the "
-    "scene sets them, unless the run says `--no-mjx-caps`) beside MuJoCo C stepping the scene as written",
+    "capped at fastrl's default count; with `--mjx-caps`, the MJX caps `max_geom_pairs` and "
+    "`max_contact_points` where the scene sets them) beside MuJoCo C stepping the scene as written",
     "scene": "the same at the scene's own `<option iterations>`, uncapped",
     "exact": "fastrl's fixed-budget solver (`linesearch='exact'`: exact line searches, no early exit) "
     "at the default count beside MuJoCo C as written (a truncated solve depends on where each line "
@@ -640,9 +640,9 @@ def main() -> None:
         help="the solver fastrl's throughput runs (default: load_mjcf's)",
     )
     parser.add_argument(
-        "--no-mjx-caps",
+        "--mjx-caps",
         action="store_true",
-        help="ignore the scenes' MJX caps (max_geom_pairs, max_contact_points): collide every pair",
+        help="honour the scenes' MJX caps (max_geom_pairs, max_contact_points), as load_mjcf(mjx_caps=True)",
     )
     parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
     parser.add_argument(
@@ -667,7 +667,7 @@ def main() -> None:
     if args.quick:  # as written and converged only: two compiles fewer
         args.seconds, args.random_steps, args.chunk, args.budget = 0.1, 40, 20, 0.0
         args.variants = [v for v in args.variants if v in ("default", "converged")]
-    MODEL_OPTIONS["mjx_caps"] = not args.no_mjx_caps
+    MODEL_OPTIONS["mjx_caps"] = args.mjx_caps
     fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     jax.config.update("jax_enable_x64", True)
     paths = robot_scenes.scene_paths()
@@ -691,7 +691,7 @@ def main() -> None:
         "batch": args.batch,
         "variants": args.variants,
         "meshes_off": args.meshes_off,
-        "mjx_caps": not args.no_mjx_caps,
+        "mjx_caps": args.mjx_caps,
         "throughput_only": args.throughput_only,
         "throughput_steps": args.throughput_steps,
     }

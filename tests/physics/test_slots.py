@@ -109,21 +109,21 @@ def _box_row(max_geom_pairs: int) -> str:
 def test_mjx_caps_collide_the_closest_pairs_and_size_the_slots(x64):
     """MJX's ``max_geom_pairs`` collides only the pairs whose bounding spheres overlap most, and
     ``max_contact_points`` sets the contact slots; where the caps do not bind the step is MuJoCo
-    C's, and ``mjx_caps=False`` ignores them."""
+    C's; without ``mjx_caps=True`` (the default) they are ignored."""
     # 10 box-box pairs, the 4 neighbours touching: a cap of 6 does not bind
     mj = mujoco.MjModel.from_xml_string(_box_row(6))
-    m = physics.model_from_mujoco(mj)
+    m = physics.model_from_mujoco(mj, mjx_caps=True)
     assert (m.max_geom_pairs, m.nconmax) == (6, 20)
     md = mujoco.MjData(mj)
     mujoco.mj_forward(mj, md)
     d = jax.jit(lambda d: fwd.forward(m, d))(_data(m, md))
     assert int(d.ncon) == md.ncon > 4
     np.testing.assert_allclose(d.qacc, md.qacc, rtol=1e-6, atol=1e-6)
-    uncapped = physics.model_from_mujoco(mj, mjx_caps=False)
+    uncapped = physics.model_from_mujoco(mj)  # the default: MuJoCo C's, every pair
     assert uncapped.max_geom_pairs == -1 and uncapped.nconmax == constraint.default_nconmax(80)
 
     # a cap of 2: only the two closest neighbours (centres 0.18 and 0.185 apart) touch
-    m = physics.load_mjcf(_box_row(2))
+    m = physics.load_mjcf(_box_row(2), mjx_caps=True)
     d = jax.jit(lambda d: fwd.forward(m, d))(physics.make_data(m))
     layout = collision_driver.contact_layout(m)
     touching = {(int(m.pair_geom1[p]), int(m.pair_geom2[p])) for p in layout[np.asarray(d.contact_dist) < 0]}
