@@ -198,7 +198,7 @@ def gjk(support_a, support_b, start, iterations: int, loop=_until_done):
     return jnp.where(inside, 0.0, dist), weights @ sa, weights @ sb, (points, sa, sb, ia, ib), used
 
 
-def _nonzero_norm(x, floor: float):
+def nonzero_norm(x, floor: float):
     """``|x|`` along the last axis (kept), or 1 where it is at most ``floor``: a divisor that
     leaves a degenerate ``x`` as it is, with a finite derivative there too (``jnp.linalg.norm``'s
     is NaN at zero, which a ``where`` downstream does not mask in reverse mode)."""
@@ -211,7 +211,7 @@ def _face_plane(v, faces):
     """Unit outward normals (F, 3) and origin distances (F,) of triangles ``faces`` of points ``v``."""
     a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
     n = jnp.cross(b - a, c - a)
-    n = n / _nonzero_norm(n, 1e-30)
+    n = n / nonzero_norm(n, 1e-30)
     return n, jnp.sum(n * a, axis=-1)
 
 
@@ -374,7 +374,7 @@ def single_contact(type1: int, type2: int):
         apart = dist > 0
         depth, n_deep, d1, d2, _ = epa(support1, support2, simplex, epa_iterations, apart, loop)
         gap = w2 - w1
-        n_apart = gap / jnp.where(apart, _nonzero_norm(gap, 0.0)[0], 1.0)
+        n_apart = gap / jnp.where(apart, nonzero_norm(gap, 0.0)[0], 1.0)
         normal = jnp.where(apart, n_apart, n_deep)
         r1, r2 = core_radius(type1, size1), core_radius(type2, size2)
         x1 = jnp.where(apart, w1, d1) + r1 * normal

@@ -318,7 +318,7 @@ def faces_pair(type1: int, type2: int):
             support1, support2, simplex, gjk.EPA_ITERATIONS, apart, loop
         )
         gap = w2 - w1
-        normal = jnp.where(apart, gap / jnp.where(apart, jnp.linalg.norm(gap), 1.0), n_deep)
+        normal = jnp.where(apart, gap / jnp.where(apart, gjk.nonzero_norm(gap, 0.0)[0], 1.0), n_deep)
         x1, x2 = jnp.where(apart, w1, d1), jnp.where(apart, w2, d2)
         single = (jnp.where(apart, dist, -depth), 0.5 * (x1 + x2), normal)
 
