@@ -354,17 +354,25 @@ def _numeric(m: mujoco.MjModel, name: str) -> int:
     return int(value)
 
 
-def asset_solver_iterations(m: mujoco.MjModel) -> int:
-    """The model's own solver iteration count: its custom numeric, else its ``<option
-    iterations>`` where that is below ``DEFAULT_SOLVER_ITERATIONS``, else the default.
+def asset_solver_iterations(m: mujoco.MjModel, linesearch: str | None = None) -> int:
+    """The model's own solver iteration count: its custom numeric if it names one. Else, for
+    MuJoCo's solver (``linesearch="mujoco"``, the default for such a model), MuJoCo's own cap
+    ``<option iterations>``: that solver stops early at the scene's ``tolerance``, as MuJoCo's
+    does. For the exact-line-search solver, which runs its count, ``iterations`` where that is
+    below ``DEFAULT_SOLVER_ITERATIONS``, else the default.
 
-    MuJoCo's ``iterations`` is a cap on a solver that stops early at its tolerance (default 100);
-    fastrl always runs its count. A scene tuned for a fixed budget (MuJoCo Playground's MJX
-    scenes set 1 or 3) is stepped with that budget, as MJX steps it: at 8 iterations the
-    feet-only H1 parted from MuJoCo C by 5e-3 in qpos within 10 steps, at its own 1 by 2e-15.
+    A scene tuned for a fixed budget (MuJoCo Playground's MJX scenes set 1 or 3) is stepped with
+    that budget, as MJX steps it: at 8 iterations the feet-only H1 parted from MuJoCo C by 5e-3
+    in qpos within 10 steps, at its own 1 by 2e-15. A scene that keeps MuJoCo's 100 needs them
+    now and then: capped at 8, the Leap hands blew up under random controls where MuJoCo C took
+    9 iterations.
     """
     named = _numeric(m, SOLVER_ITERATIONS_NUMERIC)
-    return named if named > 0 else max(1, min(int(m.opt.iterations), DEFAULT_SOLVER_ITERATIONS))
+    if named > 0:
+        return named
+    if (linesearch or asset_linesearch(m)) == "mujoco":
+        return max(1, int(m.opt.iterations))
+    return max(1, min(int(m.opt.iterations), DEFAULT_SOLVER_ITERATIONS))
 
 
 LINESEARCHES = ("exact", "mujoco")
@@ -389,11 +397,11 @@ def asset_linesearch(m: mujoco.MjModel) -> str:
     return "exact" if named else "mujoco"
 
 
-def _checked(m: mujoco.MjModel, integrator, solver_iterations, nconmax) -> tuple[Integrator, int]:
+def _checked(m: mujoco.MjModel, integrator, solver_iterations, nconmax, linesearch) -> tuple[Integrator, int]:
     """Checks the arguments and the model (``_check_supported``); returns the integrator and the
     solver's iteration count to use."""
     if solver_iterations is None:
-        solver_iterations = asset_solver_iterations(m)
+        solver_iterations = asset_solver_iterations(m, linesearch)
     if solver_iterations < 1:
         raise ValueError(f"solver_iterations={solver_iterations}; it must be at least 1")
     if nconmax is not None and nconmax < 1:
@@ -592,11 +600,11 @@ def model_from_mujoco(
     mjx_caps: bool = False,
 ) -> Model:
     """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
-    integ, solver_iterations = _checked(m, integrator, solver_iterations, nconmax)
     if linesearch is None:
         linesearch = asset_linesearch(m)
     if linesearch not in LINESEARCHES:
         raise ValueError(f"linesearch={linesearch!r}; choose one of {LINESEARCHES}")
+    integ, solver_iterations = _checked(m, integrator, solver_iterations, nconmax, linesearch)
     obj = mujoco.mjtObj
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
     eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
@@ -673,9 +681,10 @@ def load_mjcf(
       path_or_xml: a path to an ``.xml`` file, or the XML text itself.
       integrator: ``"euler"``, ``"rk4"`` or ``"implicitfast"`` to override the model's
         ``<option integrator>``.
-      solver_iterations: the constraint solver's static iteration count (Newton steps); default
-        the MJCF's ``<custom><numeric name="fastrl_solver_iterations">`` if it sets one, else
-        ``DEFAULT_SOLVER_ITERATIONS``.
+      solver_iterations: the constraint solver's most Newton steps; default the MJCF's
+        ``<custom><numeric name="fastrl_solver_iterations">`` if it sets one, else its ``<option
+        iterations>`` for ``linesearch="mujoco"`` (which stops early at ``tolerance``, as MuJoCo
+        does) and at most ``DEFAULT_SOLVER_ITERATIONS`` for ``"exact"`` (which runs its count).
       nconmax: contact slots, the most contacts that get constraint rows at once (the deepest
         candidates); default ``<size nconmax>`` if the MJCF sets it, else
         ``constraint.default_nconmax``.

@@ -23,9 +23,10 @@ module follows them (``mj_solNewton`` in MuJoCo's ``engine_solver.c``):
   ``while_loop`` with one evaluation of every island's line cost per pass, so a batch pays for
   its slowest environment's evaluations only.
 
-The iteration count is still static (``Model.solver_iterations``, MuJoCo's ``iterations``
-capped as ``io.asset_solver_iterations`` says); an island that has stopped stays put. The step
-lengths carry no gradient (as in ``solver``), so the solve stays differentiable.
+The solve runs until every island has stopped, at most ``Model.solver_iterations`` Newton
+steps (MuJoCo's ``iterations``, see ``io.asset_solver_iterations``); under ``vmap`` a batch runs
+until all its elements' islands have. The loop is not differentiated: the solve's derivative is
+that of one Newton step at its solution (``_solve_jvp``), so the solve stays differentiable.
 """
 
 from __future__ import annotations
@@ -353,7 +354,40 @@ def line_search(line: _Line, search: jax.Array, active: jax.Array, tolerance, ls
 
 def solve(m: Model, d: Data) -> Data:
     """``qacc``, ``efc_force`` and ``qfrc_constraint`` by MuJoCo's Newton solver (module docstring)."""
+    return _solve(m, d)
+
+
+@jax.custom_jvp
+def _solve(m: Model, d: Data) -> Data:
     rows = make_rows(m, d)
+    return finish(rows, d, _iterate(m, d, rows))
+
+
+@_solve.defjvp
+def _solve_jvp(primals, tangents):
+    """Differentiates the solve at its solution (the implicit function theorem): one full Newton
+    step from the solution ``a*``, ``a* - H^-1 grad(a*)``, has the derivative
+    ``-H^-1 d grad`` with the active rows held, which is how the solution moves; its value is
+    replaced by the solve's own. The loop that found ``a*`` is not differentiated (a
+    ``while_loop`` has no transpose, and its step lengths carry no gradient anyway)."""
+    m, d = primals
+    out = _solve(m, d)
+    a = jax.lax.stop_gradient(out.qacc)
+    structure = hessian_structure(m)
+
+    def newton_step(m, d):
+        rows = make_rows(m, d)
+        grad, hess = gradient_hessian(rows, d, a, rows.jar(a))
+        return finish(rows, d, a - smooth.solve_structured(structure, hess, grad))
+
+    _, tangent = jax.jvp(newton_step, primals, tangents)
+    return out, tangent
+
+
+def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
+    """The solution ``qacc``: Newton steps until every island has stopped, at most
+    ``m.solver_iterations`` (MuJoCo's ``iterations``); under ``vmap``, until every element's
+    islands have."""
     isl = islands(m, rows, d.qM)
     tol = m.solver_tolerance
     constrained = jnp.any(isl.dof > 0, axis=1)
@@ -370,12 +404,11 @@ def solve(m: Model, d: Data) -> Data:
     decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
     stopped = ~real | (gap & gradient_ok) | (gradient_ok & (decrement < tol))
 
-    def step(_, carry):
-        a, res, grad, hess, mgrad, stopped = carry
+    def step(carry):
+        k, a, res, grad, hess, mgrad, stopped = carry
         search = -mgrad * (isl.dof @ (~stopped).astype(a.dtype))
-        line = jax.lax.stop_gradient(_line(rows, isl, d, a, res, search))
-        alpha, improvement = line_search(line, jax.lax.stop_gradient(search), ~stopped,
-                                         tol * m.ls_tolerance, m.ls_iterations)  # fmt: skip
+        line = _line(rows, isl, d, a, res, search)
+        alpha, improvement = line_search(line, search, ~stopped, tol * m.ls_tolerance, m.ls_iterations)
         moved = ~stopped & (alpha != 0)
         alpha = jnp.where(moved, alpha, 0.0)
         a = a + (isl.dof @ alpha) * search
@@ -387,11 +420,15 @@ def solve(m: Model, d: Data) -> Data:
         gradient = isl.scale * isl.norm(grad)
         decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
         converged = ((improvement > 0) & (improvement < tol)) | (gradient < tol) | (decrement < tol)
-        return a, res, grad, hess, mgrad, stopped | ~moved | converged
+        return k + 1, a, res, grad, hess, mgrad, stopped | ~moved | converged
 
-    carry = (a, res, grad, hess, mgrad, stopped)
-    carry = jax.lax.fori_loop(0, m.solver_iterations, step, carry)
-    return finish(rows, d, carry[0])
+    def more(carry):
+        return (carry[0] < m.solver_iterations) & ~jnp.all(carry[-1])
+
+    carry = (0, a, res, grad, hess, mgrad, stopped)
+    if m.solver_iterations == 1:  # MJX-tuned scenes: one step needs no loop (a loop costs ~25%)
+        return step(carry)[1]
+    return jax.lax.while_loop(more, step, carry)[1]
 
 
 def _group_maps(isl: _Islands) -> tuple[jax.Array, ...]:

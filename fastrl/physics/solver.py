@@ -24,8 +24,9 @@ cost. The iteration counts are static (``Model.solver_iterations``, ``LINESEARCH
 the program has no data-dependent loop; a converged iterate stays put (zero step).
 
 This is ``Model.linesearch == "exact"``, how fastrl's environments step. ``newton.py`` follows
-MuJoCo's own algorithm instead (islands, tolerances, its inexact line search): where a scene's
-solve is truncated, only that one stops where MuJoCo does.
+MuJoCo's own algorithm instead (islands, tolerances, its inexact line search, and a loop that
+stops when they say so): where a scene's solve is truncated, only that one stops where MuJoCo
+does.
 """
 
 from __future__ import annotations

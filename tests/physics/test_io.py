@@ -100,7 +100,8 @@ def test_bad_inputs():
 
 def test_solver_iterations_from_the_asset_or_the_argument():
     numeric = '<custom><numeric name="fastrl_solver_iterations" data="{}"/></custom>'
-    assert physics.load_mjcf(_xml()).solver_iterations == physics.io.DEFAULT_SOLVER_ITERATIONS
+    exact = physics.load_mjcf(_xml(), linesearch="exact")
+    assert exact.solver_iterations == physics.io.DEFAULT_SOLVER_ITERATIONS
     assert physics.load_mjcf(_xml(extra=numeric.format(3))).solver_iterations == 3
     assert physics.load_mjcf(_xml(extra=numeric.format(3)), solver_iterations=6).solver_iterations == 6
     for bad in ("0", "2.5"):
@@ -134,12 +135,16 @@ def test_info_cli_prints_scene_summary(capsys):
 
 
 def test_solver_iterations_follow_a_scene_tuned_budget():
-    """``<option iterations>`` below fastrl's default is the scene's budget (MJX-tuned scenes);
-    MuJoCo's default cap of 100 and larger ones give fastrl's default; the custom numeric wins."""
+    """MuJoCo's solver (the default) keeps ``<option iterations>`` as its cap, stopping early at
+    the tolerance as MuJoCo does; the exact-line-search solver, which runs its count, takes the
+    scene's budget where it is below fastrl's default (MJX-tuned scenes), else the default; the
+    custom numeric wins."""
     body = '<worldbody><body><joint type="slide"/><geom size=".1"/></body></worldbody>'
-    for option, expected in [("", 8), ('iterations="1"', 1), ('iterations="3"', 3), ('iterations="50"', 8)]:
-        m = physics.load_mjcf(f"<mujoco><option {option}/>{body}</mujoco>")
-        assert m.solver_iterations == expected, option
+    cases = [("", 100, 8), ('iterations="1"', 1, 1), ('iterations="3"', 3, 3), ('iterations="50"', 50, 8)]
+    for option, mujoco_cap, exact_count in cases:
+        xml = f"<mujoco><option {option}/>{body}</mujoco>"
+        assert physics.load_mjcf(xml).solver_iterations == mujoco_cap, option
+        assert physics.load_mjcf(xml, linesearch="exact").solver_iterations == exact_count, option
     custom = '<custom><numeric name="fastrl_solver_iterations" data="5"/></custom>'
     m = physics.load_mjcf(f'<mujoco><option iterations="1"/>{custom}{body}</mujoco>')
     assert m.solver_iterations == 5

@@ -133,3 +133,38 @@ def test_vmap_and_gradient(x64):
 
     grad = jax.jit(jax.grad(loss))(jnp.ones(m.nu))
     assert np.all(np.isfinite(np.asarray(grad))) and np.any(np.asarray(grad) != 0)
+
+
+@pytest.mark.parametrize("cone", ["pyramidal", "elliptic"])
+def test_converged_solve_differentiates_as_the_solution_moves(cone, x64):
+    """The solve's derivative (one Newton step at its solution) is the solution's: reverse mode
+    equals central differences of ``qacc`` in the controls and the velocities, with
+    contacts (the ball resting on the box), a friction-loss joint and an equality active."""
+    mj = mujoco.MjModel.from_xml_string(STACK.format(iterations=100, ls=50, cone=cone))
+    mj.opt.tolerance = 1e-14
+    md = mujoco.MjData(mj)
+    for _ in range(100):  # the ball comes to rest on the box
+        mujoco.mj_step(mj, md)
+    m = physics.model_from_mujoco(mj)
+    assert m.linesearch == "mujoco" and m.solver_iterations == 100
+
+    def qacc(ctrl, qvel):
+        d = physics.make_data(m, qpos=md.qpos.copy(), qvel=qvel, ctrl=ctrl)
+        return physics.forward(m, d).qacc
+
+    ctrl, qvel = jnp.asarray([0.3]), jnp.asarray(md.qvel)
+    assert int(jax.jit(physics.forward)(m, physics.make_data(m, qpos=md.qpos.copy(), qvel=qvel)).ncon) > 0
+    for arg, x in enumerate((ctrl, qvel)):
+        reverse = np.asarray(jax.jit(jax.jacrev(qacc, argnums=arg))(ctrl, qvel))
+        f = jax.jit(qacc)
+        eps = 1e-6
+        central = np.stack(
+            [
+                (f(*[(y.at[i].add(eps) if k == arg else y) for k, y in enumerate((ctrl, qvel))])
+                 - f(*[(y.at[i].add(-eps) if k == arg else y) for k, y in enumerate((ctrl, qvel))]))
+                / (2 * eps)
+                for i in range(x.size)
+            ],
+            axis=1,
+        )  # fmt: skip
+        np.testing.assert_allclose(reverse, central, rtol=1e-5, atol=1e-5 * np.abs(central).max())
