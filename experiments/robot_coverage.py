@@ -20,11 +20,11 @@ MuJoCo Menagerie robots and MuJoCo Playground task scenes, meshes included. For 
               first keyframe (``qpos0`` and zero velocity without one), that keyframe's ``ctrl``
               held, for ``--seconds`` (2 s) of simulated time: the largest |qpos| difference
               over all steps and coordinates, and the first step where it passes 1e-4. Three
-              comparisons (``VARIANTS``): fastrl as loaded beside the scene as written; fastrl at
-              the scene's own solver iteration count; both solvers converged. Playground's
-              scenes set ``<option iterations="1">`` to ``"3"`` (tuned for MJX's speed), so
-              MuJoCo C stops its Newton solve short of convergence, and the first comparison
-              measures that truncation more than the physics; the third measures the physics.
+              comparisons (``VARIANTS``): fastrl as loaded beside the scene as written; fastrl's
+              fixed-budget solver beside the same; both solvers converged. Playground's scenes
+              set ``<option iterations="1">`` to ``"5"`` (tuned for MJX's speed), so MuJoCo C
+              stops its Newton solve short of convergence: the first comparison checks that
+              fastrl stops where MuJoCo does, the last checks the physics.
     float32   fastrl in float32, as it trains, beside MuJoCo C (float64) as written over the same
               horizon: the largest distance between their roots (the first free joint's position;
               scenes without a free joint have none), to be within 1 cm.
@@ -83,13 +83,13 @@ CONVERGED_ITERATIONS = 30
 # load_mjcf's mjx_caps for every fastrl model of the run (--mjx-caps: honour the scenes' MJX caps)
 MODEL_OPTIONS = {"mjx_caps": False}
 VARIANTS = {  # the tracking comparisons: what each runs
-    "default": "fastrl as `load_mjcf` builds it (MuJoCo's Newton algorithm, the scene's `iterations` "
-    "capped at fastrl's default count; with `--mjx-caps`, the MJX caps `max_geom_pairs` and "
-    "`max_contact_points` where the scene sets them) beside MuJoCo C stepping the scene as written",
-    "scene": "the same at the scene's own `<option iterations>`, uncapped",
+    "default": "fastrl as `load_mjcf` builds it (MuJoCo's Newton algorithm, stopping at the scene's "
+    "`tolerance` within its `iterations`, as MuJoCo's does; with `--mjx-caps`, the MJX caps "
+    "`max_geom_pairs` and `max_contact_points` where the scene sets them) beside MuJoCo C stepping "
+    "the scene as written",
     "exact": "fastrl's fixed-budget solver (`linesearch='exact'`: exact line searches, no early exit) "
-    "at the default count beside MuJoCo C as written (a truncated solve depends on where each line "
-    "search stops, so these can part)",
+    "at its default count (the scene's `iterations`, at most 8) beside MuJoCo C as written (a "
+    "truncated solve depends on where each line search stops, so these can part)",
     "converged": "both solvers converged: MuJoCo at iterations=100, ls_iterations=50, tolerance=1e-12 "
     "and its GJK/EPA at ccd_tolerance=1e-13, ccd_iterations=1000 (deep contacts with a height field "
     "go through EPA, which otherwise stops within 1e-6 of the exact contact fastrl computes); "
@@ -369,18 +369,13 @@ def _track(row: SceneResult, mj: mujoco.MjModel, model: physics.Model, args) -> 
     row.steps = max(1, round(args.seconds / mj.opt.timestep))
     row.solver_iterations = {
         "default": model.solver_iterations,
-        "scene": int(mj.opt.iterations),
-        "exact": model.solver_iterations,
+        "exact": physics_io.asset_solver_iterations(mj, "exact"),
         "converged": CONVERGED_ITERATIONS,
     }
     run = _chunk_fn(model)  # one compile for the default comparison and the random controls
     variants = _budgeted(row, model, run, mj, args)
     cases = {
         "default": lambda: (mj, model),
-        "scene": lambda: (
-            mj,
-            physics.model_from_mujoco(mj, **MODEL_OPTIONS, solver_iterations=row.solver_iterations["scene"]),
-        ),
         "exact": lambda: (mj, physics.model_from_mujoco(mj, **MODEL_OPTIONS, linesearch="exact")),
         "converged": lambda: (
             _converged(mj),
@@ -725,6 +720,7 @@ def merge(base: pathlib.Path, parts: list[pathlib.Path]) -> None:
     meta["fastrl"] = " / ".join(dict.fromkeys(run["meta"]["fastrl"] for run in runs))
     meta["command"] = "`; `".join(run["meta"]["command"] for run in runs)
     meta["merged"] = True
+    meta["variants"] = [v for v in meta["variants"] if v in VARIANTS]  # ones since retired: dropped
     shortening = [
         run["meta"].get("budget") or 0 for run in runs if any(r.get("shortened") for r in run["rows"])
     ]
