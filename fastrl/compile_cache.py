@@ -9,20 +9,45 @@ Where: ``$FASTRL_COMPILE_CACHE`` if set (an empty value turns the cache off), el
 ``$XDG_CACHE_HOME/fastrl/jax`` (``~/.cache/fastrl/jax``). The cache is bounded
 (``MAX_BYTES``, least recently used entries evicted) and its reads and writes hold a file lock,
 so runs started together share it safely.
+
+JAX's cache still traces the program to find its entry (seconds for a chunk of physics and
+learning). ``exported`` goes one step further for the training chunk: the traced program itself
+(``jax.export``'s serialised StableHLO) is kept beside JAX's entries (``*.exported``, the newest
+``MAX_EXECUTABLES``), under a key that covers everything the program is made of (the run's
+configuration, the model's arrays, the state's shapes and layout, fastrl's source files, the
+versions of JAX and the libraries that build the program, the devices and XLA flags), so an
+identical launch reads it instead of tracing, and JAX's cache then holds its compiled form. A
+changed source file or configuration is a different key; an entry that cannot be read (another
+JAX) is traced again. (XLA:CPU's own serialised executables could skip the compile too, but
+one of fastrl's chunks, reloaded, failed to find its kernels: "Function iota_convert_fusion not
+found".)
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import importlib.metadata
 import os
+import re
+import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
+import numpy as np
 
 ENV_VAR = "FASTRL_COMPILE_CACHE"
 MAX_BYTES = 4 * 1024**3
 # Programs that compile faster than this are not worth a disk entry (evaluation helpers, resets).
 MIN_COMPILE_SECS = 1.0
+MAX_EXECUTABLES = 32
+_SUFFIX = ".exported"
+# what else shapes a traced program, besides the arguments of ``program_key``
+_LIBRARIES = ("jax", "jaxlib", "flax", "optax", "numpy", "mujoco")
+# memory addresses in reprs (a static field holding a function): the same program every launch
+_ADDRESS = re.compile(r" at 0x[0-9a-f]+")
 
 
 def default_dir() -> Path:
@@ -86,3 +111,75 @@ def describe(before: tuple[int, int], enabled: bool) -> str:
 
 def is_enabled() -> bool:
     return bool(jax.config.jax_compilation_cache_dir)
+
+
+@functools.cache
+def _code_digest() -> str:
+    """A digest of every file of the fastrl package (source and assets)."""
+    root, h = Path(__file__).resolve().parent, hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.is_file() and "__pycache__" not in p.parts):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def _version(name: str) -> str:
+    try:
+        return importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return "-"
+
+
+def program_key(values, shaped) -> str:
+    """The executable cache's key for a program built from ``values`` (pytrees of arrays and plain
+    values, by content: the configuration, the model) taking arguments like ``shaped`` (by
+    structure, shape, dtype and layout: the state), with fastrl's source, the library versions,
+    the devices, XLA's flags and JAX's numeric settings."""
+    h = hashlib.sha256()
+    for tree, by_content in ((values, True), (shaped, False)):
+        leaves, treedef = jax.tree.flatten(tree)
+        h.update(_ADDRESS.sub("", str(treedef)).encode())
+        for x in leaves:
+            if not isinstance(x, jax.Array | np.ndarray | np.generic):
+                h.update(_ADDRESS.sub("", repr(x)).encode())
+                continue
+            h.update(f"{x.shape}{x.dtype}{getattr(x, 'sharding', '')}".encode())
+            if by_content:
+                h.update(np.ascontiguousarray(np.asarray(x)).tobytes())
+    h.update(_code_digest().encode())
+    h.update(repr([(n, _version(n)) for n in _LIBRARIES]).encode())
+    h.update(repr([(d.platform, d.device_kind, d.id) for d in jax.devices()]).encode())
+    h.update(os.environ.get("XLA_FLAGS", "").encode())
+    h.update(repr((jax.config.jax_enable_x64, jax.config.jax_default_matmul_precision)).encode())
+    return h.hexdigest()[:32]
+
+
+def exported(key: str, export: Callable[[], jax.export.Exported]) -> tuple[jax.export.Exported, bool]:
+    """The program under ``key`` as a ``jax.export.Exported`` (its StableHLO): read from the cache
+    folder if it holds it (no tracing), else ``export()`` (which traces), then kept. Returns it
+    and whether it was read. Compiling it (``jax.jit(exported.call)``) then goes through JAX's
+    persistent cache."""
+    path = Path(jax.config.jax_compilation_cache_dir) / f"{key}{_SUFFIX}"
+    try:
+        program = jax.export.deserialize(bytearray(path.read_bytes()))
+        os.utime(path)  # recently used
+        return program, True
+    except FileNotFoundError:
+        pass
+    except Exception:  # noqa: BLE001  (written by another JAX, or cut short): exported anew
+        path.unlink(missing_ok=True)
+    program = export()
+    with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as f:
+        f.write(program.serialize())
+    os.replace(f.name, path)  # whole or not at all
+    entries = sorted(path.parent.glob(f"*{_SUFFIX}"), key=_mtime, reverse=True)
+    for old in entries[MAX_EXECUTABLES:]:
+        old.unlink(missing_ok=True)
+    return program, False
+
+
+def _mtime(path: Path) -> float:
+    try:
+        return path.stat().st_mtime
+    except FileNotFoundError:  # another run evicted it meanwhile
+        return 0.0

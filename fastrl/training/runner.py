@@ -374,33 +374,67 @@ class _Program:
 
 def _compile_chunk(setup: _Setup, state) -> _Program:
     """``n`` updates in a loop (``n`` a traced argument: every chunk size runs the same program),
-    their metrics summed; jitted once with the state donated."""
+    their metrics summed; jitted once with the state donated. With the compilation cache on, an
+    identical launch reads the traced program from it (``compile_cache.exported``) instead of
+    tracing, and its compiled form from JAX's cache."""
     shardings, t0, cache_before = setup.shardings, time.perf_counter(), compile_cache.counts()
-    # jit's trace cache: eval_shape traces the update once, the loop body reuses that trace
-    update = jax.jit(setup.learner.update)
-    metrics_shape = jax.eval_shape(update, state)[1]
 
-    def run_chunk(s, n):
-        def body(_, carry):
-            s, sums = carry
-            s, metrics = update(s)
-            return s, jax.tree.map(lambda a, m: a + m.astype(a.dtype), sums, metrics)
+    def traced():
+        # jit's trace cache: eval_shape traces the update once, the loop body reuses that trace
+        update = jax.jit(setup.learner.update)
+        metrics_shape = jax.eval_shape(update, state)[1]
 
-        zeros = jax.tree.map(
-            lambda m: jnp.zeros(m.shape, jnp.result_type(m.dtype, jnp.float32)), metrics_shape
-        )
-        s, sums = jax.lax.fori_loop(0, n, body, (s, zeros))
-        if shardings is not None:  # keep the layout fixed from chunk to chunk
-            s = jax.lax.with_sharding_constraint(s, shardings)
-        return s, sums
+        def run_chunk(s, n):
+            def body(_, carry):
+                s, sums = carry
+                s, metrics = update(s)
+                return s, jax.tree.map(lambda a, m: a + m.astype(a.dtype), sums, metrics)
+
+            zeros = jax.tree.map(
+                lambda m: jnp.zeros(m.shape, jnp.result_type(m.dtype, jnp.float32)), metrics_shape
+            )
+            s, sums = jax.lax.fori_loop(0, n, body, (s, zeros))
+            if shardings is not None:  # keep the layout fixed from chunk to chunk
+                s = jax.lax.with_sharding_constraint(s, shardings)
+            return s, sums
+
+        return run_chunk
 
     count = jax.ShapeDtypeStruct((), jnp.int32)
-    lowered = jax.jit(run_chunk, donate_argnums=0).lower(state, count)
-    trace_s = time.perf_counter() - t0
-    compiled = lowered.compile()
-    compile_s = time.perf_counter() - t0
+    if not compile_cache.is_enabled() or jax.process_count() > 1:
+        lowered = jax.jit(traced(), donate_argnums=0).lower(state, count)
+        traced_note = f"{time.perf_counter() - t0:.1f}s tracing"
+        return _Program(lowered.compile(), *_compiled(t0, traced_note, cache_before))
+    # With the cache: the chunk as a function of the state's leaves, exported (jax.export keeps
+    # builtin containers only), read back by an identical launch without tracing
+    leaves, treedef = jax.tree.flatten(state)
+
+    def export():
+        run_chunk = traced()
+        flat = lambda xs, n: _flat_out(run_chunk(jax.tree.unflatten(treedef, xs), n))  # noqa: E731
+        return jax.export.export(jax.jit(flat))(leaves, count)
+
+    key = compile_cache.program_key((setup.config, getattr(setup.env, "model", None)), state)
+    exported, read = compile_cache.exported(key, export)
+    traced_note = "traced program read from the cache" if read else f"{time.perf_counter() - t0:.1f}s tracing"
+    compiled = jax.jit(exported.call, donate_argnums=0).lower(leaves, count).compile()
+
+    def run(s, n):
+        out, sums = compiled(jax.tree.leaves(s), n)
+        return jax.tree.unflatten(treedef, out), sums
+
+    return _Program(run, *_compiled(t0, traced_note, cache_before))
+
+
+def _flat_out(out):
+    state, sums = out
+    return jax.tree.leaves(state), sums
+
+
+def _compiled(t0: float, traced_note: str, cache_before) -> tuple[float, str]:
+    """Seconds since ``t0`` and the first line's note on how the chunk was traced and compiled."""
     cache_note = compile_cache.describe(cache_before, compile_cache.is_enabled())
-    return _Program(compiled, compile_s, f"{trace_s:.1f}s tracing, {cache_note}")
+    return time.perf_counter() - t0, f"{traced_note}, {cache_note}"
 
 
 def _announce_start(setup: _Setup, program: _Program, run_dir: Path) -> None:

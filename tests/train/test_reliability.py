@@ -113,7 +113,8 @@ def test_command_line_runs_load_anywhere_and_rejected_starts_change_nothing(tmp_
 
 def test_two_runs_started_in_the_same_second_get_their_own_folders(tmp_path):
     # Both also share a fresh persistent compilation cache (FASTRL_COMPILE_CACHE), writing the
-    # same entry at once; a third identical launch then reads its chunk from it.
+    # same entry at once; a third launch, identical to the first, then reads its chunk from it,
+    # traced program and compiled program both, and trains to the same numbers.
     env = _env(FASTRL_CPU_DEVICES="1", FASTRL_COMPILE_CACHE=str(tmp_path / "cache"))
     env.pop("JAX_COMPILATION_CACHE_DIR")
     args = [sys.executable, "-m", "fastrl.train", *QUICK_CLI, "train.total_env_steps=512"]
@@ -138,8 +139,12 @@ def test_two_runs_started_in_the_same_second_get_their_own_folders(tmp_path):
     assert seeds == [0, 1]
     for d in dirs:  # each folder holds one run: one row per chunk
         assert len((d / "metrics.csv").read_text().strip().splitlines()) == 1 + 2
-    third = subprocess.run([*args, "seed=2"], cwd=tmp_path, env=env, capture_output=True, text=True)
-    assert "compilation cache hit" in third.stdout, third.stdout + third.stderr
+    third = subprocess.run([*args, "seed=0"], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert "traced program read from the cache, compilation cache hit" in third.stdout, third.stdout + third.stderr
+    again = (set((tmp_path / "runs" / "inverted_pendulum-ppo").iterdir()) - set(dirs)).pop()
+    first = next(d for d in dirs if load_run(d)[0].seed == 0)
+    for a, b in zip(jax.tree.leaves(load_run(first)[3]), jax.tree.leaves(load_run(again)[3]), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     off = subprocess.run(
         [*args, "seed=3"],
         cwd=tmp_path,
@@ -251,3 +256,39 @@ def test_a_world_with_nothing_to_move_is_refused_by_name(xml):
 def test_load_policy_names_a_missing_run(tmp_path):
     with pytest.raises(CheckpointError, match="not a fastrl run folder"):
         load_policy(tmp_path)
+
+
+def test_the_cached_program_key_follows_what_builds_the_program(tmp_path):
+    """The key of a kept traced program changes with the configuration, the model and the state's
+    shapes, not with memory addresses in reprs or the state's values; an entry that cannot be
+    read is traced again."""
+    from fastrl import compile_cache
+
+    model = envs.make("inverted_pendulum").model
+    state = {"params": jnp.zeros((3, 2)), "step": jnp.int32(0)}
+    config = {"seed": 0, "fn": lambda: 0}  # a repr holding "at 0x..."
+    key = compile_cache.program_key((config, model), state)
+    assert compile_cache.program_key(({"seed": 0, "fn": lambda: 0}, model), state) == key
+    assert compile_cache.program_key((config, model), {**state, "params": jnp.ones((3, 2))}) == key
+    assert compile_cache.program_key(({**config, "seed": 1}, model), state) != key
+    assert compile_cache.program_key((config, model.replace(timestep=model.timestep * 2)), state) != key
+    assert compile_cache.program_key((config, model), {**state, "params": jnp.zeros((3, 3))}) != key
+
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path))  # restored below
+    try:
+        calls = []
+
+        def export():
+            calls.append(1)
+            return jax.export.export(jax.jit(lambda x: 2 * x))(jnp.zeros(3))
+
+        first, read = compile_cache.exported(key, export)
+        assert not read and len(calls) == 1
+        again, read = compile_cache.exported(key, export)
+        assert read and len(calls) == 1
+        np.testing.assert_array_equal(again.call(jnp.ones(3)), 2 * np.ones(3))
+        (tmp_path / f"{key}.exported").write_bytes(b"not a program")
+        _, read = compile_cache.exported(key, export)
+        assert not read and len(calls) == 2
+    finally:
+        jax.config.update("jax_compilation_cache_dir", str(Path(__file__).parents[2] / ".jax_cache"))
