@@ -140,7 +140,8 @@ def test_two_runs_started_in_the_same_second_get_their_own_folders(tmp_path):
     for d in dirs:  # each folder holds one run: one row per chunk
         assert len((d / "metrics.csv").read_text().strip().splitlines()) == 1 + 2
     third = subprocess.run([*args, "seed=0"], cwd=tmp_path, env=env, capture_output=True, text=True)
-    assert "traced program read from the cache, compilation cache hit" in third.stdout, third.stdout + third.stderr
+    read = "traced program read from the cache, compilation cache hit"
+    assert read in third.stdout, third.stdout + third.stderr
     again = (set((tmp_path / "runs" / "inverted_pendulum-ppo").iterdir()) - set(dirs)).pop()
     first = next(d for d in dirs if load_run(d)[0].seed == 0)
     for a, b in zip(jax.tree.leaves(load_run(first)[3]), jax.tree.leaves(load_run(again)[3]), strict=True):
