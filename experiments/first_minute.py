@@ -57,8 +57,11 @@ def launch(env: str, updates: int, cache: str, run_dir: pathlib.Path, extra: lis
         lines.append(line.rstrip())
         if out["first_line_s"] is None and re.match(r"\[[#-]+\]", line):
             out["first_line_s"] = time.perf_counter() - t0
-        if m := re.search(r"chunk compiled in ([\d.]+)s \(([\d.]+)s tracing, compilation cache (\w+)", line):
-            out["compile_s"], out["tracing_s"], out["cache"] = float(m[1]), float(m[2]), m[3]
+        if m := re.search(r"chunk compiled in ([\d.]+)s \(([\d.]+s tracing|traced program read from the "
+                          r"cache), compilation cache (\w+)", line):  # fmt: skip
+            traced = m[2].removesuffix("s tracing")
+            out["compile_s"], out["cache"] = float(m[1]), m[3]
+            out["tracing_s"] = 0.0 if traced.startswith("traced") else float(traced)
         if m := re.search(r"([\d,]+) updates x ([\d,]+) env steps", line):
             assert int(m[2].replace(",", "")) == STEPS_PER_UPDATE[env], line  # the table above is stale
     proc.wait()

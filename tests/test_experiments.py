@@ -235,4 +235,5 @@ def test_first_minute_quick(tmp_path):
     result = _run_quick("first_minute.py", tmp_path, "first_minute_quick.json")
     cold, cached = result["results"]["inverted_pendulum"].values()
     assert cold["cache"] == "miss" and cached["cache"] == "hit"
+    assert cold["tracing_s"] > 0 and cached["tracing_s"] == 0  # the traced program read back
     assert 0 < cold["first_line_s"] < cold["wall_s"] and cached["train_steps_per_s"] > 0
