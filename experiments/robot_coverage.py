@@ -80,6 +80,7 @@ QUICK_SCENES = (
 )
 _PREFIX = "fastrl cannot simulate this model yet: "
 CONVERGED_ITERATIONS = 30
+SPEEDS = ("fastrl_sps", "mujoco_sps")  # a row's --throughput fields
 # load_mjcf's mjx_caps for every fastrl model of the run (--mjx-caps: honour the scenes' MJX caps)
 MODEL_OPTIONS = {"mjx_caps": False}
 VARIANTS = {  # the tracking comparisons: what each runs
@@ -711,11 +712,13 @@ def merge(base: pathlib.Path, parts: list[pathlib.Path]) -> None:
     rows: dict[str, dict] = {}
     for run in runs:  # later runs win; a --throughput-only run adds its speeds to the rows
         for r in run["rows"]:
-            if run["meta"].get("throughput_only") and r["name"] in rows:
-                rows[r["name"]].update(fastrl_sps=r["fastrl_sps"], mujoco_sps=r["mujoco_sps"])
-                rows[r["name"]]["error"] = rows[r["name"]]["error"] or r["error"]
-            else:
-                rows[r["name"]] = r
+            earlier = rows.get(r["name"])
+            if run["meta"].get("throughput_only") and earlier:
+                earlier.update(fastrl_sps=r["fastrl_sps"], mujoco_sps=r["mujoco_sps"])
+                earlier["error"] = earlier["error"] or r["error"]
+            else:  # a run that did not time the scene keeps the speeds an earlier run measured
+                untimed = earlier and r["fastrl_sps"] is None and r["mujoco_sps"] is None
+                rows[r["name"]] = {**r, **({k: earlier[k] for k in SPEEDS} if untimed else {})}
     meta = dict(runs[0]["meta"])
     meta["fastrl"] = " / ".join(dict.fromkeys(run["meta"]["fastrl"] for run in runs))
     meta["command"] = "`; `".join(run["meta"]["command"] for run in runs)
