@@ -13,7 +13,7 @@ so runs started together share it safely.
 JAX's cache still traces the program to find its entry (seconds for a chunk of physics and
 learning). ``exported`` goes one step further for the training chunk: the traced program itself
 (``jax.export``'s serialised StableHLO) is kept beside JAX's entries (``*.exported``, the newest
-``MAX_EXECUTABLES``), under a key that covers everything the program is made of (the run's
+``MAX_PROGRAMS``), under a key that covers everything the program is made of (the run's
 configuration, the model's arrays, the state's shapes and layout, fastrl's source files, the
 versions of JAX and the libraries that build the program, the devices and XLA flags), so an
 identical launch reads it instead of tracing, and JAX's cache then holds its compiled form. A
@@ -42,7 +42,7 @@ ENV_VAR = "FASTRL_COMPILE_CACHE"
 MAX_BYTES = 4 * 1024**3
 # Programs that compile faster than this are not worth a disk entry (evaluation helpers, resets).
 MIN_COMPILE_SECS = 1.0
-MAX_EXECUTABLES = 32
+MAX_PROGRAMS = 32
 _SUFFIX = ".exported"
 # what else shapes a traced program, besides the arguments of ``program_key``
 _LIBRARIES = ("jax", "jaxlib", "flax", "optax", "numpy", "mujoco")
@@ -131,7 +131,7 @@ def _version(name: str) -> str:
 
 
 def program_key(values, shaped) -> str:
-    """The executable cache's key for a program built from ``values`` (pytrees of arrays and plain
+    """The key of a kept traced program built from ``values`` (pytrees of arrays and plain
     values, by content: the configuration, the model) taking arguments like ``shaped`` (by
     structure, shape, dtype and layout: the state), with fastrl's source, the library versions,
     the devices, XLA's flags and JAX's numeric settings."""
@@ -173,7 +173,7 @@ def exported(key: str, export: Callable[[], jax.export.Exported]) -> tuple[jax.e
         f.write(program.serialize())
     os.replace(f.name, path)  # whole or not at all
     entries = sorted(path.parent.glob(f"*{_SUFFIX}"), key=_mtime, reverse=True)
-    for old in entries[MAX_EXECUTABLES:]:
+    for old in entries[MAX_PROGRAMS:]:
         old.unlink(missing_ok=True)
     return program, False
 

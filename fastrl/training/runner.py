@@ -379,7 +379,7 @@ def _compile_chunk(setup: _Setup, state) -> _Program:
     tracing, and its compiled form from JAX's cache."""
     shardings, t0, cache_before = setup.shardings, time.perf_counter(), compile_cache.counts()
 
-    def traced():
+    def chunk_fn():
         # jit's trace cache: eval_shape traces the update once, the loop body reuses that trace
         update = jax.jit(setup.learner.update)
         metrics_shape = jax.eval_shape(update, state)[1]
@@ -402,7 +402,7 @@ def _compile_chunk(setup: _Setup, state) -> _Program:
 
     count = jax.ShapeDtypeStruct((), jnp.int32)
     if not compile_cache.is_enabled() or jax.process_count() > 1:
-        lowered = jax.jit(traced(), donate_argnums=0).lower(state, count)
+        lowered = jax.jit(chunk_fn(), donate_argnums=0).lower(state, count)
         traced_note = f"{time.perf_counter() - t0:.1f}s tracing"
         return _Program(lowered.compile(), *_compiled(t0, traced_note, cache_before))
     # With the cache: the chunk as a function of the state's leaves, exported (jax.export keeps
@@ -410,8 +410,12 @@ def _compile_chunk(setup: _Setup, state) -> _Program:
     leaves, treedef = jax.tree.flatten(state)
 
     def export():
-        run_chunk = traced()
-        flat = lambda xs, n: _flat_out(run_chunk(jax.tree.unflatten(treedef, xs), n))  # noqa: E731
+        run_chunk = chunk_fn()
+
+        def flat(xs, n):
+            s, sums = run_chunk(jax.tree.unflatten(treedef, xs), n)
+            return jax.tree.leaves(s), sums
+
         return jax.export.export(jax.jit(flat))(leaves, count)
 
     key = compile_cache.program_key((setup.config, getattr(setup.env, "model", None)), state)
@@ -424,11 +428,6 @@ def _compile_chunk(setup: _Setup, state) -> _Program:
         return jax.tree.unflatten(treedef, out), sums
 
     return _Program(run, *_compiled(t0, traced_note, cache_before))
-
-
-def _flat_out(out):
-    state, sums = out
-    return jax.tree.leaves(state), sums
 
 
 def _compiled(t0: float, traced_note: str, cache_before) -> tuple[float, str]:
