@@ -1,7 +1,7 @@
 """Ant with contacts: fastrl's control steps/s vs EnvPool (MuJoCo C) and Brax, in one run.
 
-    python experiments/bench_contacts.py             # a few minutes on 2 cores
-    python experiments/bench_contacts.py --quick     # tiny, for CI (peers skipped if absent)
+    python -m experiments.bench_contacts             # a few minutes on 2 cores
+    python -m experiments.bench_contacts --quick     # tiny, for CI (peers skipped if absent)
 
 Control step 0.05 s. fastrl runs its Ant asset (a) as Gymnasium/EnvPool do, RK4 at 0.01 s x 5,
 (b) with semi-implicit Euler at 0.01 s x 5, both with the asset's solver iterations (7), and (c)
@@ -32,13 +32,13 @@ import jax.numpy as jnp
 import numpy as np
 
 import fastrl
+from experiments import results
 from fastrl import envs, physics
 from fastrl.xla_flags import peer_environ
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = results.ROOT
 ANT = ROOT / "fastrl" / "assets" / "ant.xml"
 PEERS = ROOT / ".venv-peers" / "bin" / "python"
-RESULTS = ROOT / "experiments" / "results"
 # Gymnasium's Ant start pose: standing, legs bent.
 QPOS0 = np.array([0, 0, 0.75, 1, 0, 0, 0, 0, 1, 0, -1, 0, -1, 0, 1.0])
 
@@ -82,8 +82,8 @@ def bench_fastrl_devices(settings, batches: list[int], control_steps: int, devic
     """``bench_fastrl`` rows measured in a child process with ``devices`` CPU devices."""
     env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
     spec = json.dumps({"settings": settings, "batches": batches, "control_steps": control_steps})
-    cmd = [sys.executable, __file__, "--worker", spec]
-    out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True, timeout=3600)
+    cmd = [sys.executable, "-m", "experiments.bench_contacts", "--worker", spec]
+    out = subprocess.run(cmd, env=env, cwd=ROOT, check=True, capture_output=True, text=True, timeout=3600)
     return [json.loads(line[4:]) for line in out.stdout.splitlines() if line.startswith("ROW ")]
 
 
@@ -119,12 +119,9 @@ def bench_brax(backend: str, batch: int, steps: int) -> dict | None:
     return r
 
 
-def _chart(rows: list[dict], path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def chart(rows: list[dict]):
+    """Control steps/s against batch, one line per engine (log-log)."""
+    plt = results.pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for engine in dict.fromkeys(r["engine"] for r in rows):
         pts = sorted((r["batch"], r["control_steps_per_s"]) for r in rows if r["engine"] == engine)
@@ -134,60 +131,17 @@ def _chart(rows: list[dict], path: pathlib.Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    return fig
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
-    parser.add_argument("--worker", help=argparse.SUPPRESS)  # child process of bench_fastrl_devices
-    args = parser.parse_args()
-    if args.worker:
-        spec = json.loads(args.worker)
-        for integrator, iterations in spec["settings"]:
-            for b in spec["batches"]:
-                print(
-                    "ROW " + json.dumps(bench_fastrl(integrator, b, spec["control_steps"], iterations)),
-                    flush=True,
-                )
-        return
-    fastrl_batches = [16] if args.quick else [64, 256, 1024, 4096, 8192]
-    control_steps = 2 if args.quick else 10
-    from omegaconf import OmegaConf
-
-    shipped = OmegaConf.load(ROOT / "conf" / "experiment" / "ant_ppo.yaml").env
-    rows = []
-    settings = [("rk4", None), ("euler", None), (shipped.integrator, shipped.solver_iterations)]
-    if args.quick:  # one compile in CI: the setting the Ant trains with
-        settings = settings[-1:]
-    for integrator, iterations in settings:
-        for b in fastrl_batches:
-            rows.append(bench_fastrl(integrator, b, control_steps, iterations))
-            print(rows[-1], flush=True)
-    split_settings = settings[-1:] if args.quick else [settings[0], settings[-1]]
-    for r in bench_fastrl_devices(split_settings, [2 * b for b in fastrl_batches[:1]] if args.quick
-                                  else fastrl_batches[1:], control_steps, 2):  # fmt: skip
-        rows.append(r)
-        print(rows[-1], flush=True)
-    if not args.quick:
-        for n in (16, 64, 256):
-            rows.append(bench_envpool(n, 5.0))
-            print(rows[-1], flush=True)
-        for backend in ("mjx", "generalized", "spring", "positional"):
-            for b in (256, 1024):
-                rows.append(bench_brax(backend, b, 50))
-                print(rows[-1], flush=True)
-    rows = [r for r in rows if r]
-    args.out.mkdir(parents=True, exist_ok=True)
-    name = "contacts_throughput_quick" if args.quick else "contacts_throughput"
-    (args.out / f"{name}.json").write_text(json.dumps(rows, indent=1))
+def markdown(rows: list[dict]) -> str:
+    """The table of every row against EnvPool's best, then each engine's best."""
     best = {}
     for r in rows:
         best[r["engine"]] = max(best.get(r["engine"], 0.0), r["control_steps_per_s"])
     envpool = next((v for k, v in best.items() if k.startswith("EnvPool")), None)
     lines = ["# Ant with contacts: control steps per second (0.05 s each)", "",
-             f"Machine: {os.cpu_count()} cores. Command: `python experiments/bench_contacts.py`.", "",
+             f"Machine: {results.machine()}. Command: `python -m experiments.bench_contacts`.", "",
              "| engine | batch | control steps/s | compile s | vs EnvPool best |",
              "| --- | ---: | ---: | ---: | ---: |"]  # fmt: skip
     for r in rows:
@@ -195,9 +149,63 @@ def main() -> None:
         sps = f"{r['control_steps_per_s']:,.0f}"
         lines.append(f"| {r['engine']} | {r['batch']} | {sps} | {r['compile_s']:.1f} | {ratio} |")
     lines += ["", "Best per engine:", ""] + [f"- {k}: {v:,.0f}" for k, v in best.items()]
-    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
-    _chart(rows, args.out / f"{name}.png")
-    print("\n".join(lines))
+    return "\n".join(lines)
+
+
+def worker(spec: dict) -> None:
+    """The child process of ``bench_fastrl_devices``: prints a ``ROW <json>`` line per measurement."""
+    for integrator, iterations in spec["settings"]:
+        for b in spec["batches"]:
+            print(
+                "ROW " + json.dumps(bench_fastrl(integrator, b, spec["control_steps"], iterations)),
+                flush=True,
+            )
+
+
+def measure(quick: bool) -> list[dict]:
+    """fastrl's settings on 1 device, then 2; the peers (full mode only). Prints each row."""
+    fastrl_batches = [16] if quick else [64, 256, 1024, 4096, 8192]
+    control_steps = 2 if quick else 10
+    from omegaconf import OmegaConf
+
+    shipped = OmegaConf.load(ROOT / "conf" / "experiment" / "ant_ppo.yaml").env
+    rows = []
+    settings = [("rk4", None), ("euler", None), (shipped.integrator, shipped.solver_iterations)]
+    if quick:  # one compile in CI: the setting the Ant trains with
+        settings = settings[-1:]
+    for integrator, iterations in settings:
+        for b in fastrl_batches:
+            rows.append(bench_fastrl(integrator, b, control_steps, iterations))
+            print(rows[-1], flush=True)
+    split_settings = settings[-1:] if quick else [settings[0], settings[-1]]
+    for r in bench_fastrl_devices(split_settings, [2 * b for b in fastrl_batches[:1]] if quick
+                                  else fastrl_batches[1:], control_steps, 2):  # fmt: skip
+        rows.append(r)
+        print(rows[-1], flush=True)
+    if not quick:
+        for n in (16, 64, 256):
+            rows.append(bench_envpool(n, 5.0))
+            print(rows[-1], flush=True)
+        for backend in ("mjx", "generalized", "spring", "positional"):
+            for b in (256, 1024):
+                rows.append(bench_brax(backend, b, 50))
+                print(rows[-1], flush=True)
+    return [r for r in rows if r]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
+    parser.add_argument("--worker", help=argparse.SUPPRESS)  # child process of bench_fastrl_devices
+    args = parser.parse_args()
+    if args.worker:
+        return worker(json.loads(args.worker))
+    rows = measure(args.quick)
+    name = "contacts_throughput_quick" if args.quick else "contacts_throughput"
+    text = markdown(rows)
+    results.save(args.out, name, rows, text, chart(rows), dpi=120)
+    print(text)
 
 
 if __name__ == "__main__":

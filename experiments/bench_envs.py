@@ -1,7 +1,7 @@
 """Every env's throughput, and the Gymnasium vector API against Gymnasium's own, in one run.
 
-    python experiments/bench_envs.py            # ~20-30 min on 2 cores (compiles every env twice)
-    python experiments/bench_envs.py --quick    # tiny, for CI (peers skipped if absent)
+    python -m experiments.bench_envs            # ~20-30 min on 2 cores (compiles every env twice)
+    python -m experiments.bench_envs --quick    # tiny, for CI (peers skipped if absent)
 
 1. For every fastrl env at batch 1024 and 4096: control steps/s of ``vmap(env.step)`` (with
    auto-reset, rewards and observations: the full env step) under a jitted scan with uniform
@@ -40,11 +40,11 @@ import jax
 import jax.numpy as jnp
 
 import fastrl
+from experiments import results
 from fastrl import envs
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = results.ROOT
 PEERS = ROOT / ".venv-peers" / "bin" / "python"
-RESULTS = ROOT / "experiments" / "results"
 ENVPOOL_IDS = {
     "ant": "Ant-v4", "halfcheetah": "HalfCheetah-v4", "hopper": "Hopper-v4", "walker2d": "Walker2d-v4",
     "humanoid": "Humanoid-v4", "humanoidstandup": "HumanoidStandup-v4", "reacher": "Reacher-v4",
@@ -122,49 +122,38 @@ def bench_vector(num_envs: int, steps: int, gym: bool = True) -> dict:
 def in_child(job: dict, devices: int) -> list[dict]:
     """Runs ``job`` (fastrl env rows and make_vec loops) in a child process with ``devices`` CPU devices."""
     env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
-    cmd = [sys.executable, __file__, "--worker", json.dumps(job)]
+    cmd = [sys.executable, "-m", "experiments.bench_envs", "--worker", json.dumps(job)]
     # stdout carries the rows; stderr (progress) goes straight to ours.
-    out = subprocess.run(cmd, env=env, check=True, stdout=subprocess.PIPE, text=True, timeout=7200)
+    out = subprocess.run(cmd, env=env, cwd=ROOT, check=True, stdout=subprocess.PIPE, text=True, timeout=7200)
     return [json.loads(line[4:]) for line in out.stdout.splitlines() if line.startswith("ROW ")]
 
 
-def main() -> None:
-    fmt = argparse.RawDescriptionHelpFormatter
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=fmt)
-    parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS, help="results folder")
-    parser.add_argument("--envs", nargs="*", default=None, help="subset of env names")
-    parser.add_argument("--batches", type=int, nargs="*", default=[1024, 4096], help="batch sizes")
-    parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
-    parser.add_argument("--name", default="env_throughput",
-                        help="output file stem (a partial run need not replace the full table)")  # fmt: skip
-    parser.add_argument("--worker", help=argparse.SUPPRESS)  # child process of in_child
-    args = parser.parse_args()
-    if args.worker:
-        job = json.loads(args.worker)
-        for name, batch in job["envs"]:
-            row = bench_fastrl(name, batch, job["steps"])
-            print("ROW " + json.dumps(row), flush=True)
-            print(f"  {jax.device_count()} devices: {name} x{batch}: {row['control_steps_per_s']:,.0f} "
-                  f"control steps/s", file=sys.stderr, flush=True)  # fmt: skip
-        for n in job["vector"]:
-            row = bench_vector(n, job["vector_steps"], gym=False)
-            print("ROW " + json.dumps(row), flush=True)
-            print(f"  {jax.device_count()} devices: make_vec x{n}: {row['fastrl_make_vec_steps_per_s']:,.0f} "
-                  "steps/s", file=sys.stderr, flush=True)  # fmt: skip
-        return
-    names = args.envs or (["inverted_pendulum"] if args.quick else envs.names())
-    batches = [8] if args.quick else args.batches
-    steps = 2 if args.quick else args.steps
+def worker(job: dict) -> None:
+    """The child process of ``in_child``: a ``ROW <json>`` line on stdout per row, progress on stderr."""
+    for name, batch in job["envs"]:
+        row = bench_fastrl(name, batch, job["steps"])
+        print("ROW " + json.dumps(row), flush=True)
+        print(f"  {jax.device_count()} devices: {name} x{batch}: {row['control_steps_per_s']:,.0f} "
+              f"control steps/s", file=sys.stderr, flush=True)  # fmt: skip
+    for n in job["vector"]:
+        row = bench_vector(n, job["vector_steps"], gym=False)
+        print("ROW " + json.dumps(row), flush=True)
+        print(f"  {jax.device_count()} devices: make_vec x{n}: {row['fastrl_make_vec_steps_per_s']:,.0f} "
+              "steps/s", file=sys.stderr, flush=True)  # fmt: skip
+
+
+def measure(names: list[str], batches: list[int], steps: int, quick: bool) -> tuple[list[dict], list[dict]]:
+    """Every env's rows (with EnvPool beside them) and the make_vec loops, on one device, then the
+    same on 2 devices in a child process, merged into them."""
     rows = []
     for name in names:
         for batch in batches:
             r = bench_fastrl(name, batch, steps)
-            peer = None if args.quick else bench_envpool(name, batch, 5.0)
+            peer = None if quick else bench_envpool(name, batch, 5.0)
             r["envpool_control_steps_per_s"] = peer["control_steps_per_s"] if peer else None
             rows.append(r)
             print(json.dumps(r), flush=True)
-    vector_sizes, vector_steps = ([4], 3) if args.quick else ([64, 1024], 20)
+    vector_sizes, vector_steps = ([4], 3) if quick else ([64, 1024], 20)
     vector = [bench_vector(n, vector_steps) for n in vector_sizes]
     print(json.dumps(vector))
     job = {"envs": [[r["env"], r["batch"]] for r in rows], "steps": steps, "vector": vector_sizes,
@@ -181,13 +170,13 @@ def main() -> None:
             "fastrl_make_vec_training_settings_steps_per_s"
         ]
         v["ratio_training_settings_2_devices"] = t / g
-    suffix = "_quick" if args.quick else ""
-    args.out.mkdir(parents=True, exist_ok=True)
-    meta = {"machine": "2-core x86_64 CPU, no accelerator", "jax": jax.__version__}
-    result = {"meta": meta, "envs": rows, "vector": vector}
-    (args.out / f"{args.name}{suffix}.json").write_text(json.dumps(result, indent=1))
+    return rows, vector
+
+
+def markdown(rows: list[dict], vector: list[dict]) -> str:
+    """The env table (one device, two, EnvPool), then the make_vec vs SyncVectorEnv table."""
     lines = ["# Env throughput (control steps/s, this machine, one run)", "",
-             f"Command: `{' '.join(['python experiments/bench_envs.py', *sys.argv[1:]])}`. "
+             f"Command: `{results.command()}`. "
              "fastrl: the full env step (physics, observation,",
              "reward, auto-reset) on one CPU device, and split over 2 CPU devices (one per core).", "",
              "| env | batch | fastrl | fastrl, 2 devices | EnvPool (MuJoCo C, 2 threads) | fastrl / EnvPool "
@@ -218,7 +207,29 @@ def main() -> None:
                  *(f"{x:.2f}x" for x in ratios[:2]), *(f"{x:,.0f}" for x in rates[2:]),
                  *(f"{x:.2f}x" for x in ratios[2:])]  # fmt: skip
         lines.append(f"| {v['num_envs']} | " + " | ".join(cells) + " |")
-    (args.out / f"{args.name}{suffix}.md").write_text("\n".join(lines) + "\n")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    fmt = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=fmt)
+    parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS, help="results folder")
+    parser.add_argument("--envs", nargs="*", default=None, help="subset of env names")
+    parser.add_argument("--batches", type=int, nargs="*", default=[1024, 4096], help="batch sizes")
+    parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
+    parser.add_argument("--name", default="env_throughput",
+                        help="output file stem (a partial run need not replace the full table)")  # fmt: skip
+    parser.add_argument("--worker", help=argparse.SUPPRESS)  # child process of in_child
+    args = parser.parse_args()
+    if args.worker:
+        return worker(json.loads(args.worker))
+    names = args.envs or (["inverted_pendulum"] if args.quick else envs.names())
+    batches = [8] if args.quick else args.batches
+    rows, vector = measure(names, batches, 2 if args.quick else args.steps, args.quick)
+    meta = {"machine": results.machine(), "jax": jax.__version__}
+    stem = args.name + ("_quick" if args.quick else "")
+    results.save(args.out, stem, {"meta": meta, "envs": rows, "vector": vector}, markdown(rows, vector))
 
 
 if __name__ == "__main__":

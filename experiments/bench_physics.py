@@ -1,7 +1,7 @@
 """Physics throughput of the contact-free Ant-like model: fastrl vs MuJoCo C, in one run.
 
-    python experiments/bench_physics.py            # full table (a few minutes on 2 cores)
-    python experiments/bench_physics.py --quick    # tiny settings, for CI
+    python -m experiments.bench_physics            # full table (a few minutes on 2 cores)
+    python -m experiments.bench_physics --quick    # tiny settings, for CI
 
 For each integrator it measures fastrl's physics steps/s at several batch sizes (one jitted
 ``lax.scan`` over ``--steps`` vmapped steps, best of ``--repeats``), the compile time of that
@@ -13,10 +13,7 @@ what limits the speed. Results go to ``experiments/results/physics_throughput.{m
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import pathlib
-import platform
 import time
 
 import jax
@@ -26,12 +23,11 @@ import mujoco.rollout
 import numpy as np
 
 import fastrl
+from experiments import results
 from fastrl import physics
 from fastrl.physics import actuation, passive, smooth
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-MODEL = ROOT / "tests" / "assets" / "ant_air.xml"
-RESULTS = ROOT / "experiments" / "results"
+MODEL = results.ROOT / "tests" / "assets" / "ant_air.xml"
 
 
 def _batch(m: physics.Model, batch: int, steps: int, seed: int = 0):
@@ -127,7 +123,7 @@ def profile_stages(m: physics.Model, batch: int, repeats: int) -> dict[str, floa
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     args = parser.parse_args()
     batches = [8] if args.quick else [1, 64, 1024, 4096]
     steps, repeats = (5, 1) if args.quick else (100, 3)
@@ -157,14 +153,17 @@ def main() -> None:
         profiles[integrator] = profile_stages(m, batches[-1], repeats)
         print(profiles[integrator], flush=True)
 
-    cpu = platform.processor() or platform.machine()
-    machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}, mujoco {mujoco.__version__}"
-    args.out.mkdir(parents=True, exist_ok=True)
+    machine = results.machine()
     name = "physics_throughput_quick" if args.quick else "physics_throughput"
-    payload = {"machine": machine, "rows": rows, "profile_us": profiles}
-    (args.out / f"{name}.json").write_text(json.dumps(payload, indent=1))
+    text = markdown(rows, profiles, integrators, batches[-1], machine)
+    results.save(args.out, name, {"machine": machine, "rows": rows, "profile_us": profiles}, text)
+    print(text)
+
+
+def markdown(rows: list[dict], profiles: dict, integrators: tuple[str, ...], batch: int, machine: str) -> str:
+    """The throughput table (each row against MuJoCo C's 2-thread rollout), then the stage profile."""
     lines = [f"# Physics throughput: contact-free Ant-like model ({MODEL.name}), float32", "",
-             f"Machine: {machine}. Command: `python experiments/bench_physics.py`.", "",
+             f"Machine: {machine}. Command: `python -m experiments.bench_physics`.", "",
              "| integrator | engine | batch | steps/s | compile s | vs MuJoCo rollout 2 threads |",
              "| --- | --- | ---: | ---: | ---: | ---: |"]  # fmt: skip
     for integrator in integrators:
@@ -173,13 +172,10 @@ def main() -> None:
         for r in sub:
             lines.append(f"| {integrator} | {r['engine']} | {r['batch']} | {r['steps_per_s']:,.0f} | "
                          f"{r['compile_s']:.1f} | {r['steps_per_s'] / ref:.2f}x |")  # fmt: skip
-    lines += ["", f"Stage profile at batch {batches[-1]} (us per batched call):", "",
-              "| stage | " + " | ".join(integrators) + " |",
-              "| --- |" + " ---: |" * len(integrators)]  # fmt: skip
-    for stage in profiles["euler"]:
-        lines.append(f"| {stage} | " + " | ".join(f"{profiles[i][stage]:,.0f}" for i in integrators) + " |")
-    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    stages = [[stage, *(f"{profiles[i][stage]:,.0f}" for i in integrators)] for stage in profiles["euler"]]
+    lines += ["", f"Stage profile at batch {batch} (us per batched call):", "",
+              results.table(["stage", *integrators], stages, align="l" + "r" * len(integrators))]  # fmt: skip
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

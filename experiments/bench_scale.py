@@ -1,8 +1,8 @@
 """Sweeps and scale on this machine: N agents in one program, and 2 host devices vs 1.
 
-    python experiments/bench_scale.py            # Ant PPO (the shipped settings), 8 agents
-    python experiments/bench_scale.py --env inverted_pendulum   # a small env's tuned PPO
-    python experiments/bench_scale.py --quick    # tiny, for CI
+    python -m experiments.bench_scale            # Ant PPO (the shipped settings), 8 agents
+    python -m experiments.bench_scale --env inverted_pendulum   # a small env's tuned PPO
+    python -m experiments.bench_scale --quick    # tiny, for CI
 
 Every configuration trains through ``fastrl.runner.train`` in a fresh process (the device
 count is fixed when JAX starts), a few chunks of the Ant's tuned PPO with evaluation kept
@@ -29,8 +29,10 @@ import subprocess
 import sys
 import tempfile
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "experiments" / "results"
+from experiments import results
+
+ROOT = results.ROOT
+KEYS = ("loss/policy_loss", "loss/value_loss", "train/episode_return", "eval/episode_return")
 
 
 def worker(overrides: list[str], run_dir: str) -> None:
@@ -85,7 +87,14 @@ def measure(overrides: list[str], devices: int) -> dict:
     env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, __file__, "--worker", json.dumps(overrides), tmp + "/run"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "experiments.bench_scale",
+            "--worker",
+            json.dumps(overrides),
+            tmp + "/run",
+        ]
         out = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=ROOT)
     if out.returncode:
         raise RuntimeError(f"{overrides} on {devices} devices failed:\n{out.stderr[-3000:]}")
@@ -106,6 +115,96 @@ def max_rel_diff(a: list[dict], b: list[dict], keys: tuple[str, ...]) -> float:
     return worst
 
 
+def configure(args) -> tuple[list[str], int]:
+    """The overrides every run shares, and the number of agents in the batched runs."""
+    if args.quick:
+        return ["env=inverted_pendulum", "debug=quick", "logger=quiet", "train.total_env_steps=512"], 2
+    base = [
+        f"env={args.env}",
+        "algo=ppo",
+        "logger=quiet",
+        f"train.updates_per_chunk={args.updates_per_chunk}",
+        "train.eval_envs=4",
+    ]
+    per_update = _steps_per_update(base)
+    base.append(f"train.total_env_steps={args.chunks * args.updates_per_chunk * per_update}")
+    return base, args.agents
+
+
+def measure_all(base: list[str], n_agents: int) -> dict[str, dict]:
+    """The five configurations, each in a fresh process."""
+    seeds = [f"train.num_seeds={n_agents}"]
+    return {
+        "one run, 1 device": measure(base, 1),
+        f"{n_agents} agents in one program, 1 device": measure(base + seeds, 1),
+        "one run of seed 1, 1 device": measure(base + ["seed=1"], 1),
+        "one run, 2 devices (env batch split)": measure(base, 2),
+        f"{n_agents} agents in one program, 2 devices (agents split)": measure(base + seeds, 2),
+    }
+
+
+def agreement(runs: dict[str, dict], n_agents: int) -> dict:
+    """How closely the batched agents follow their single runs, and 2 devices follow 1."""
+    batch_rows = runs[f"{n_agents} agents in one program, 1 device"]["rows"]
+    # Float rounding differs between a vmapped and a single program; the first chunk shows how
+    # closely they agree, the last whether chaotic dynamics have since amplified the difference.
+    agree, last_eval = {}, {}
+    for s, name in ((0, "one run, 1 device"), (1, "one run of seed 1, 1 device")):
+        single = runs[name]["rows"]
+        for which, c in (("first", 0), ("last", -1)):
+            agree[f"agent seed {s} vs its single run, {which} chunk"] = max_rel_diff(
+                [batch_rows[c][s]], [single[c][0]], KEYS
+            )
+        last_eval[s] = (
+            batch_rows[-1][s].get("eval/episode_return"),
+            single[-1][0].get("eval/episode_return"),
+        )
+    finals = [batch_rows[-1][i].get("eval/episode_return", float("nan")) for i in range(n_agents)]
+    sharded = max_rel_diff(runs["one run, 2 devices (env batch split)"]["rows"][0],
+                           runs["one run, 1 device"]["rows"][0], KEYS)  # fmt: skip
+    return {"agreement": agree, "final_eval_agent_vs_single": last_eval,
+            "sharded_first_chunk_rel_diff": sharded, "agent_final_eval_returns": finals}  # fmt: skip
+
+
+def sweep_estimate(runs: dict[str, dict], n_agents: int, budget: int) -> dict | None:
+    """Wall seconds of ``n_agents`` runs of ``budget`` env steps, one after the other and in one
+    program (1 device, compiles included); None when a rate is missing."""
+    one, batch = runs["one run, 1 device"], runs[f"{n_agents} agents in one program, 1 device"]
+    if not (one["env_steps_per_s"] and batch["env_steps_per_s"]):
+        return None
+    sequential = n_agents * (one["compile_s"] + budget / one["env_steps_per_s"])
+    together = batch["compile_s"] + n_agents * budget / batch["env_steps_per_s"]
+    return {"sequential": sequential, "one_program": together}
+
+
+def markdown(result: dict, env: str, label: str, n_agents: int, budget: int) -> str:
+    """The configurations' throughput, the sweep estimate and the agreement list."""
+    runs, one = result["runs"], result["runs"]["one run, 1 device"]["env_steps_per_s"]
+    lines = [f"# Sweeps and scale: {label} PPO on a {result['cpu_count']}-core CPU", "",
+             f"Command: `python -m experiments.bench_scale --env {env}`. Env steps/s summed over "
+             "agents, median of chunks after the first.", "",
+             "| configuration | env steps/s | vs one run on 1 device | compile s |",
+             "| --- | ---: | ---: | ---: |"]  # fmt: skip
+    for name, r in runs.items():
+        ratio = r["env_steps_per_s"] / one if one else float("nan")
+        lines.append(f"| {name} | {r['env_steps_per_s']:,.0f} | {ratio:.2f}x | {r['compile_s']:.1f} |")
+    if estimate := result.get("sweep_estimate_s"):
+        sequential, together = estimate["sequential"], estimate["one_program"]
+        lines += ["", f"Estimated wall time of {n_agents} runs of the shipped budget ({budget:,d} env steps "
+                  f"each), compiles included, 1 device: one after the other {sequential:,.0f} s, in one "
+                  f"program "
+                  f"{together:,.0f} s ({sequential / together:.2f}x)."]  # fmt: skip
+    lines += ["", "Largest relative difference of the chunk's losses and returns:", ""]
+    lines += [f"- {k}: {v:.2e}" for k, v in result["agreement"].items()]
+    lines += [f"- agent seed {s}: final eval return {a:.1f} in the batch, {b:.1f} as a single run"
+              for s, (a, b) in result["final_eval_agent_vs_single"].items()]  # fmt: skip
+    sharded, finals = result["sharded_first_chunk_rel_diff"], result["agent_final_eval_returns"]
+    lines += [f"- one run on 2 devices vs 1 device, first chunk: {sharded:.2e}", "",
+              "Final evaluation returns of the agents (independent RNG streams): "
+              + ", ".join(f"{x:.1f}" for x in finals)]  # fmt: skip
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
@@ -115,89 +214,25 @@ def main() -> None:
         "--updates-per-chunk", type=int, default=2, help="longer chunks time small envs better"
     )
     parser.add_argument("--chunks", type=int, default=4)
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     parser.add_argument("--render", type=pathlib.Path, help="re-tabulate this result JSON's runs")
     parser.add_argument("--worker", nargs=2, metavar=("OVERRIDES_JSON", "RUN_DIR"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         worker(json.loads(args.worker[0]), args.worker[1])
         return
-    if args.quick:
-        base = ["env=inverted_pendulum", "debug=quick", "logger=quiet", "train.total_env_steps=512"]
-        n_agents, per_update = 2, 128
-    else:
-        base = [
-            f"env={args.env}",
-            "algo=ppo",
-            "logger=quiet",
-            f"train.updates_per_chunk={args.updates_per_chunk}",
-        ]
-        base.append("train.eval_envs=4")
-        n_agents, per_update = args.agents, _steps_per_update(base)
-        base.append(f"train.total_env_steps={args.chunks * args.updates_per_chunk * per_update}")
-    seeds = [f"train.num_seeds={n_agents}"]
-    if args.render:  # re-tabulate the runs of an earlier measurement
-        runs = json.loads(args.render.read_text())["runs"]
-    else:
-        runs = {
-            "one run, 1 device": measure(base, 1),
-            f"{n_agents} agents in one program, 1 device": measure(base + seeds, 1),
-            "one run of seed 1, 1 device": measure(base + ["seed=1"], 1),
-            "one run, 2 devices (env batch split)": measure(base, 2),
-            f"{n_agents} agents in one program, 2 devices (agents split)": measure(base + seeds, 2),
-        }
-    one = runs["one run, 1 device"]["env_steps_per_s"]
-    keys = ("loss/policy_loss", "loss/value_loss", "train/episode_return", "eval/episode_return")
-    batch_rows = runs[f"{n_agents} agents in one program, 1 device"]["rows"]
-    # Float rounding differs between a vmapped and a single program; the first chunk shows how
-    # closely they agree, the last whether chaotic dynamics have since amplified the difference.
-    agree, last_eval = {}, {}
-    for s, name in ((0, "one run, 1 device"), (1, "one run of seed 1, 1 device")):
-        single = runs[name]["rows"]
-        for which, c in (("first", 0), ("last", -1)):
-            agree[f"agent seed {s} vs its single run, {which} chunk"] = max_rel_diff(
-                [batch_rows[c][s]], [single[c][0]], keys
-            )
-        last_eval[s] = (
-            batch_rows[-1][s].get("eval/episode_return"),
-            single[-1][0].get("eval/episode_return"),
-        )
-    finals = [batch_rows[-1][i].get("eval/episode_return", float("nan")) for i in range(n_agents)]
-    sharded = max_rel_diff(runs["one run, 2 devices (env batch split)"]["rows"][0],
-                           runs["one run, 1 device"]["rows"][0], keys)  # fmt: skip
-    args.out.mkdir(parents=True, exist_ok=True)
-    name = "scale_throughput_quick" if args.quick else f"scale_throughput_{args.env}"
-    result = {"runs": runs, "agreement": agree, "final_eval_agent_vs_single": last_eval,
-              "sharded_first_chunk_rel_diff": sharded, "agent_final_eval_returns": finals,
-              "cpu_count": os.cpu_count()}  # fmt: skip
-    lines = [f"# Sweeps and scale: {base[0].split('=')[1]} PPO on a {os.cpu_count()}-core CPU", "",
-             f"Command: `python experiments/bench_scale.py --env {args.env}`. Env steps/s summed over "
-             "agents, median of chunks after the first.", "",
-             "| configuration | env steps/s | vs one run on 1 device | compile s |",
-             "| --- | ---: | ---: | ---: |"]  # fmt: skip
-    for label, r in runs.items():
-        ratio = r["env_steps_per_s"] / one if one else float("nan")
-        lines.append(f"| {label} | {r['env_steps_per_s']:,.0f} | {ratio:.2f}x | {r['compile_s']:.1f} |")
+    base, n_agents = configure(args)
+    # --render: re-tabulate the runs of an earlier measurement
+    runs = results.load(args.render)["runs"] if args.render else measure_all(base, n_agents)
+    result = {"runs": runs, **agreement(runs, n_agents), "cpu_count": os.cpu_count()}
     budget = _total_env_steps([f"env={args.env}", "algo=ppo"]) if not args.quick else 512
-    one_c, batch = runs["one run, 1 device"]["compile_s"], runs[f"{n_agents} agents in one program, 1 device"]
-    if one and batch["env_steps_per_s"]:
-        sequential = n_agents * (one_c + budget / one)
-        together = batch["compile_s"] + n_agents * budget / batch["env_steps_per_s"]
-        lines += ["", f"Estimated wall time of {n_agents} runs of the shipped budget ({budget:,d} env steps "
-                  f"each), compiles included, 1 device: one after the other {sequential:,.0f} s, in one "
-                  f"program "
-                  f"{together:,.0f} s ({sequential / together:.2f}x)."]  # fmt: skip
-        result["sweep_estimate_s"] = {"sequential": sequential, "one_program": together}
-    lines += ["", "Largest relative difference of the chunk's losses and returns:", ""]
-    lines += [f"- {k}: {v:.2e}" for k, v in agree.items()]
-    lines += [f"- agent seed {s}: final eval return {a:.1f} in the batch, {b:.1f} as a single run"
-              for s, (a, b) in last_eval.items()]  # fmt: skip
-    lines += [f"- one run on 2 devices vs 1 device, first chunk: {sharded:.2e}", "",
-              "Final evaluation returns of the agents (independent RNG streams): "
-              + ", ".join(f"{x:.1f}" for x in finals)]  # fmt: skip
-    (args.out / f"{name}.json").write_text(json.dumps(result, indent=1))
-    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    if estimate := sweep_estimate(runs, n_agents, budget):
+        result["sweep_estimate_s"] = estimate
+    text = markdown(result, args.env, base[0].split("=")[1], n_agents, budget)
+    results.save(
+        args.out, "scale_throughput_quick" if args.quick else f"scale_throughput_{args.env}", result, text
+    )
+    print(text)
 
 
 if __name__ == "__main__":

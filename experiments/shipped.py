@@ -1,14 +1,13 @@
 """The physics settings ``python -m fastrl.train env=<name>`` trains with, for experiments.
 
-Shared by the experiment scripts (``python experiments/<script>.py`` puts this folder on the
-import path) so that "the shipped setting" means one thing everywhere.
+Shared by the experiment scripts (``from experiments.shipped import shipped_setting``) so that
+"the shipped setting" means one thing everywhere. A helper module, not a script.
 """
 
 from __future__ import annotations
 
-import pathlib
+from experiments.results import ROOT
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
 PHYSICS_KEYS = ("integrator", "solver_iterations", "timestep", "frame_skip")
 
 

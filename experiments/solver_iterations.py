@@ -1,7 +1,7 @@
 """How many Newton iterations each model needs: the evidence behind the assets' iteration counts.
 
-    python experiments/solver_iterations.py            # ~40 min on 2 cores (the Humanoids most)
-    python experiments/solver_iterations.py --quick    # tiny, for CI
+    python -m experiments.solver_iterations            # ~40 min on 2 cores (the Humanoids most)
+    python -m experiments.solver_iterations --quick    # tiny, for CI
 
 For every Gymnasium-suite asset, two measurements along random-action rollouts (controls uniform
 in the actuator ranges, held over the env's frame skip, a fresh start every 1000 control steps):
@@ -21,7 +21,6 @@ more than 1e-4; none such keeps the default 8. Writes
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
 
 import jax
@@ -30,12 +29,11 @@ import mujoco
 import numpy as np
 
 import fastrl
+from experiments import results
 from fastrl import physics
 from fastrl.physics import io
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-ASSETS = ROOT / "fastrl" / "assets"
-RESULTS = ROOT / "experiments" / "results"
+ASSETS = results.ROOT / "fastrl" / "assets"
 FRAME_SKIP = {
     "ant": 5, "half_cheetah": 5, "hopper": 4, "walker2d": 4, "humanoid": 5, "humanoidstandup": 5,
     "pusher": 5, "reacher": 2, "swimmer": 4, "inverted_pendulum": 2, "inverted_double_pendulum": 5,
@@ -109,12 +107,11 @@ def _int_keys(row: dict) -> dict:
 
 
 def write(rows: list[dict], out: pathlib.Path, stem: str, command: str) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{stem}.json").write_text(json.dumps(rows, indent=1))
+    """The rows as JSON and the table as markdown."""
     head = " | ".join(f"<= {k}" for k in KS)
     lines = [
         "# Newton iterations each model needs", "",
-        f"Machine: 2 cores. Command: `{command}`.", "",
+        f"Machine: {results.machine()}. Command: `{command}`.", "",
         "MuJoCo C's Newton solver (tolerance 1e-8): the share of physics steps of random-action rollouts "
         "that converged within k iterations; then fastrl's share of steps whose acceleration after k "
         "iterations differs from 32 iterations' by more than 1e-4 (relative). Rule: the smallest k with "
@@ -137,13 +134,13 @@ def write(rows: list[dict], out: pathlib.Path, stem: str, command: str) -> None:
         "first passing count up to the first that passes fastrl's check) fastrl's share off by > 1e-4. "
         "fastrl's check: 64 rollouts x 300 control steps from the asset's qpos0 with small noise.",
     ]
-    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
+    results.save(out, stem, rows, "\n".join(lines))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="two models, tiny rollouts, for CI")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     parser.add_argument("--models", nargs="+", choices=sorted(FRAME_SKIP), default=None)
     parser.add_argument("--merge", action="store_true", help="keep the other models' rows in the output JSON")
     args = parser.parse_args()
@@ -154,10 +151,10 @@ def main() -> None:
         r = rows[-1]
         print(f"{name}: rule {r['rule']}, shipped {r['shipped']}, MuJoCo max {r['max_mujoco_iterations']}")
     stem = "solver_iterations_quick" if args.quick else "solver_iterations"
-    command = "python experiments/solver_iterations.py" + (" --quick" if args.quick else "")
+    command = "python -m experiments.solver_iterations" + (" --quick" if args.quick else "")
     old = args.out / f"{stem}.json"
     if args.merge and old.exists():
-        kept = {r["name"]: _int_keys(r) for r in json.loads(old.read_text())}
+        kept = {r["name"]: _int_keys(r) for r in results.load(old)}
         kept.update({r["name"]: r for r in rows})
         rows = [kept[n] for n in FRAME_SKIP if n in kept]
         command += f" (then --models {' '.join(names)} --merge)"

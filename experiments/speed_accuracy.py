@@ -1,11 +1,11 @@
 """Speed vs accuracy of fastrl's physics knobs on five models, with MuJoCo C on the same axes.
 
-    python experiments/speed_accuracy.py                         # all five models, ~45 min on 2 cores
-    python experiments/speed_accuracy.py --models ant hopper     # a subset
-    python experiments/speed_accuracy.py --models ant --merge    # add to the committed models
-    python experiments/speed_accuracy.py --quick                 # tiny, for CI
-    python experiments/speed_accuracy.py --brax-only             # re-measure Brax's points only
-    python experiments/speed_accuracy.py --from-json             # re-mark the shipped settings
+    python -m experiments.speed_accuracy                         # all five models, ~45 min on 2 cores
+    python -m experiments.speed_accuracy --models ant hopper     # a subset
+    python -m experiments.speed_accuracy --models ant --merge    # add to the committed models
+    python -m experiments.speed_accuracy --quick                 # tiny, for CI
+    python -m experiments.speed_accuracy --brax-only             # re-measure Brax's points only
+    python -m experiments.speed_accuracy --from-json             # re-mark the shipped settings
 
 Models: the Ant, HalfCheetah, Hopper and Humanoid (contacts) and the InvertedDoublePendulum (no
 contacts; its cart's joint limit, its only constraint, is not reached within its horizon). Each
@@ -69,9 +69,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import pathlib
-import platform
 import statistics
 import time
 from collections.abc import Callable
@@ -81,15 +79,15 @@ import jax.numpy as jnp
 import mujoco
 import mujoco.rollout
 import numpy as np
-from shipped import shipped_setting  # experiments/shipped.py
 
 import fastrl
+from experiments import results
+from experiments.shipped import shipped_setting
 from fastrl import envs, physics
 from fastrl.envs.base import ASSETS
 from fastrl.xla_flags import peer_environ
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "experiments" / "results"
+ROOT = results.ROOT
 MODELS = ("ant", "halfcheetah", "hopper", "humanoid", "inverted_double_pendulum")
 CONTACT_FREE = ("inverted_double_pendulum",)
 # Simulated seconds per sequence. Measured on these 16 sequences, the floor against MuJoCo C's
@@ -453,20 +451,17 @@ def label(r: dict) -> str:
     return f"{r['engine']} {r['integrator']} {r['timestep']:.4g}x{r['substeps']}, {solver}"
 
 
-def chart(results: dict, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cols = min(len(results), 3)
-    nrows = -(-len(results) // cols)
+def chart(measured: dict):
+    """One panel per model: control steps/s against error, the fronts and the shipped setting."""
+    plt = results.pyplot()
+    cols = min(len(measured), 3)
+    nrows = -(-len(measured) // cols)
     fig, axes = plt.subplots(nrows, cols, figsize=(5.2 * cols, 4.3 * nrows), squeeze=False)
     styles = {("fastrl", "euler"): ("o", "tab:blue"), ("fastrl", "rk4"): ("s", "tab:orange"),
               ("MuJoCo C", "euler"): ("^", "black"), ("MuJoCo C", "rk4"): ("v", "black"),
               ("Brax", "mjx"): ("D", "tab:green"), ("Brax", "generalized"): ("P", "tab:purple"),
               ("Brax", "spring"): ("X", "tab:brown"), ("Brax", "positional"): ("*", "tab:pink")}  # fmt: skip
-    for ax, (name, res) in zip(axes.flat, results.items(), strict=False):
+    for ax, (name, res) in zip(axes.flat, measured.items(), strict=False):
         ok = [r for r in res["rows"] if r["error"] is not None]
         for (engine, integrator), (marker, color) in styles.items():
             pts = [(r["control_steps_per_s"], r["error"]) for r in ok
@@ -494,16 +489,15 @@ def chart(results: dict, path: pathlib.Path) -> None:
                ylabel=f"RMS error of {res['metric']}", title=title)  # fmt: skip
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=6, framealpha=0.4)  # translucent: points may sit under it
-    for ax in list(axes.flat)[len(results) :]:
+    for ax in list(axes.flat)[len(measured) :]:
         ax.axis("off")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
-def markdown(results: dict, machine: str) -> str:
+def markdown(measured: dict, machine: str) -> str:
     lines = ["# Speed vs accuracy: fastrl's physics knobs, MuJoCo C and Brax", "",
-             f"Machine: {machine}. Command: `python experiments/speed_accuracy.py`.", "",
+             f"Machine: {machine}. Command: `python -m experiments.speed_accuracy`.", "",
              "Error: RMS over control steps and sequences of the distance to a converged MuJoCo C "
              "reference (float64, asset timestep / 20, Newton with 100 iterations and tolerance "
              "1e-12) of the root body's world position (of qpos for the fixed-base pendulum), from "
@@ -515,7 +509,7 @@ def markdown(results: dict, machine: str) -> str:
              "no other setting is at least as fast and as accurate (errors within "
              f"{PARETO_TOL:.0%} plus the floor count as equal), among all settings (front) or "
              "fastrl's alone (fastrl front).", ""]  # fmt: skip
-    for name, res in results.items():
+    for name, res in measured.items():
         ship = next((r for r in res["rows"] if r["shipped"]), {})
         where = ", ".join(
             f"**{'on' if ship.get(key) else 'not on'} {text}**"
@@ -544,10 +538,10 @@ def markdown(results: dict, machine: str) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the pendulum, 2 timesteps, for CI")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     parser.add_argument("--models", nargs="+", choices=MODELS, default=None)
     parser.add_argument(
         "--merge",
@@ -567,54 +561,55 @@ def main() -> None:
         action="store_true",
         help="measure nothing: mark the shipped settings anew from the current configs and re-render",
     )
+    return parser
+
+
+def sweep_plan(task: dict, quick: bool, args) -> dict:
+    """What one model's sweep runs. Quick: the shipped integrator and iterations only, and one
+    program shape for speed and accuracy (batch = sequences, timed over the whole short horizon)."""
+    one_iteration_count = quick or task["name"] in CONTACT_FREE
+    return {
+        "batch": 64 if quick else BATCH,
+        "sequences": 64 if quick else SEQUENCES,
+        "speed_steps": task["steps"] if quick else 1,
+        "substeps": substep_grid(task["frame_skip"], quick),
+        "integrators": [task["shipped"]["integrator"]] if quick else ["euler", "rk4"],
+        "iterations": [task["shipped"]["solver_iterations"]] if one_iteration_count else ITERATIONS,
+        "brax": [] if quick or args.no_brax or not PEERS_PYTHON.exists() else args.brax_backends,
+    }
+
+
+def main() -> None:
+    parser = _parser()
     args = parser.parse_args()
     if args.from_json:
         return rerender(args.out / ("speed_accuracy_quick.json" if args.quick else "speed_accuracy.json"))
     if args.brax_only and not PEERS_PYTHON.exists():
         parser.error(f"--brax-only needs the peer venv {PEERS_PYTHON} (experiments/peers/setup_peers.sh)")
     models = args.models or (["inverted_double_pendulum"] if args.quick else list(MODELS))
-    results = {}
+    measured = {}
     stem = "speed_accuracy_quick" if args.quick else "speed_accuracy"
     previous = args.out / f"{stem}.json"
-    earlier = json.loads(previous.read_text())["models"] if previous.exists() else {}
+    earlier = results.load(previous)["models"] if previous.exists() else {}
     if args.brax_only and not set(models) <= set(earlier):
         parser.error(f"--brax-only: {previous} has no rows for {sorted(set(models) - set(earlier))}")
     if args.merge or args.brax_only:
-        results = {k: v for k, v in earlier.items() if k not in models}
-        print(f"keeping {', '.join(results) or 'no models'} from {previous}")
+        measured = {k: v for k, v in earlier.items() if k not in models}
+        print(f"keeping {', '.join(measured) or 'no models'} from {previous}")
     if not PEERS_PYTHON.exists() and not args.no_brax:
         print(f"no peer venv at {PEERS_PYTHON}: Brax left out (bash experiments/peers/setup_peers.sh)")
     for name in models:
-        # Quick: the shipped integrator and iterations only, and one program shape for speed and
-        # accuracy (batch = sequences, timed over the whole short horizon).
-        horizon = 0.2 if args.quick else HORIZON_S[name]
-        task = make_task(name, 64 if args.quick else BATCH, horizon)
-        one_iteration_count = args.quick or name in CONTACT_FREE
-        plan = {
-            "batch": 64 if args.quick else BATCH,
-            "sequences": 64 if args.quick else SEQUENCES,
-            "speed_steps": task["steps"] if args.quick else 1,
-            "substeps": substep_grid(task["frame_skip"], args.quick),
-            "integrators": [task["shipped"]["integrator"]] if args.quick else ["euler", "rk4"],
-            "iterations": [task["shipped"]["solver_iterations"]] if one_iteration_count else ITERATIONS,
-            "brax": [] if args.quick or args.no_brax or not PEERS_PYTHON.exists() else args.brax_backends,
-        }
+        task = make_task(name, 64 if args.quick else BATCH, 0.2 if args.quick else HORIZON_S[name])
         keep = earlier[name]["rows"] if args.brax_only else None
-        results[name] = sweep_model(task, plan, keep)
-
-    cpu = platform.processor() or platform.machine()
-    machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}, mujoco {mujoco.__version__}"
-    args.out.mkdir(parents=True, exist_ok=True)
-    results = {name: results[name] for name in MODELS if name in results}  # a fixed order
-    write(args.out / f"{stem}.json", machine, results)
+        measured[name] = sweep_model(task, sweep_plan(task, args.quick, args), keep)
+    measured = {name: measured[name] for name in MODELS if name in measured}  # a fixed order
+    write(args.out / f"{stem}.json", results.machine(), measured)
 
 
-def write(path: pathlib.Path, machine: str, results: dict) -> None:
+def write(path: pathlib.Path, machine: str, measured: dict) -> None:
     """The JSON at ``path``, and beside it the table (.md) and the chart (.png)."""
-    path.write_text(json.dumps({"machine": machine, "models": results}, indent=1))
-    text = markdown(results, machine)
-    path.with_suffix(".md").write_text(text)
-    chart(results, path.with_suffix(".png"))
+    text = markdown(measured, machine)
+    results.save(path.parent, path.stem, {"machine": machine, "models": measured}, text, chart(measured))
     print(text)
 
 
@@ -623,7 +618,7 @@ def rerender(path: pathlib.Path) -> None:
     have changed since the rows were measured) and rewrites the table and chart; measures nothing."""
     if not path.exists():
         raise SystemExit(f"--from-json: no {path}; run the sweep first")
-    saved = json.loads(path.read_text())
+    saved = results.load(path)
     for name, res in saved["models"].items():
         res["shipped"] = shipped_setting(name, res["dt"])
         for r in res["rows"]:

@@ -1,10 +1,10 @@
 """Stability map: where each env's simulation diverges, over timestep x solver iterations.
 
-    python experiments/stability_map.py                          # all eleven envs, ~2.5 h on 2 cores
-    python experiments/stability_map.py --envs ant hopper        # a subset
-    python experiments/stability_map.py --envs walker2d --merge  # add envs to the committed map
-    python experiments/stability_map.py --integrators euler rk4  # both integrators (twice the cost)
-    python experiments/stability_map.py --quick                  # tiny, for CI (~20 s)
+    python -m experiments.stability_map                          # all eleven envs, ~2.5 h on 2 cores
+    python -m experiments.stability_map --envs ant hopper        # a subset
+    python -m experiments.stability_map --envs walker2d --merge  # add envs to the committed map
+    python -m experiments.stability_map --integrators euler rk4  # both integrators (twice the cost)
+    python -m experiments.stability_map --quick                  # tiny, for CI (~20 s)
 
 Envs: the eleven Gymnasium-suite envs: the contact envs Ant, HalfCheetah, Hopper, Walker2d,
 Humanoid, HumanoidStandup (the Humanoid's model, starting lying down) and Pusher, and the
@@ -72,10 +72,7 @@ iterations.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import pathlib
-import platform
 import statistics
 import textwrap
 import time
@@ -84,16 +81,15 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from shipped import shipped_setting  # experiments/shipped.py
 
 import fastrl
+from experiments import results
+from experiments.shipped import shipped_setting
 from fastrl import envs
 from fastrl.envs.base import ASSETS
 from fastrl.physics import step
 from fastrl.physics.forward import has_constraints
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "experiments" / "results"
 ENVS = ("ant", "halfcheetah", "hopper", "walker2d", "humanoid", "humanoidstandup", "pusher",
         "swimmer", "reacher", "inverted_pendulum", "inverted_double_pendulum")  # fmt: skip
 QUICK_ENV = "inverted_double_pendulum"
@@ -271,21 +267,19 @@ def _tick(res: dict, r: dict) -> str:
     return f"{r['timestep']:.3g}\n(x{r['substeps']})"
 
 
-def chart(results: dict, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def chart(maps: dict):
+    """One panel per env and integrator: the grid of diverged fractions, the shipped cell boxed."""
+    plt = results.pyplot()
     from matplotlib.patches import Rectangle
 
-    panels = [(name, integ) for name, res in results.items()
+    panels = [(name, integ) for name, res in maps.items()
               for integ in sorted({r["integrator"] for r in res["rows"]})]  # fmt: skip
     cols = min(len(panels), 3)
     nrows = -(-len(panels) // cols)
     fig, axes = plt.subplots(nrows, cols, figsize=(5.0 * cols, 4.0 * nrows + 0.6), squeeze=False)
     image = None
     for ax, (name, integ) in zip(axes.flat, panels, strict=False):
-        res = results[name]
+        res = maps[name]
         rows = [r for r in res["rows"] if r["integrator"] == integ]
         ts = sorted({r["timestep"] for r in rows})
         its = sorted({r["solver_iterations"] for r in rows})
@@ -327,8 +321,7 @@ def chart(results: dict, path: pathlib.Path) -> None:
     fig.tight_layout(rect=(0, 0, 0.9, 1))
     if image is not None:
         fig.colorbar(image, ax=axes.ravel().tolist(), shrink=0.6, label="fraction diverged")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def _pct(x: float) -> str:
@@ -349,7 +342,7 @@ def _runs_line(runs: list[dict]) -> str:
     return ("Command: " if len(done) == 1 else "Commands, merged in turn: ") + "; ".join(done) + "."
 
 
-def markdown(results: dict, machine: str, runs: list[dict]) -> str:
+def markdown(maps: dict, machine: str, runs: list[dict]) -> str:
     lines = ["# Stability map: timestep x solver iterations", "",
              f"Machine: {machine}. {_runs_line(runs)}", "",
              "Each cell: episodes of random actions (uniform in the action bounds, one per control "
@@ -366,7 +359,7 @@ def markdown(results: dict, machine: str, runs: list[dict]) -> str:
               "The smallest timestep on the grid with any divergence, and the smallest the guard flags.", "",
               "| env | dt (s) | shipped | integrator | first divergence | first guard flag |",
               "| --- | ---: | --- | --- | ---: | ---: |"]  # fmt: skip
-    for name, res in results.items():
+    for name, res in maps.items():
         s = res["shipped"]
         ship = f"{s['integrator']}, {res['dt'] / s['substeps']:.3g} s x{s['substeps']}, "
         ship += f"{s['solver_iterations']} iters"
@@ -376,7 +369,7 @@ def markdown(results: dict, machine: str, runs: list[dict]) -> str:
             lines.append(f"| {name} | {res['dt']:.3g} | {ship}{judged} | {integ} "
                          f"| {_where(res, lim['diverged'])} | {_where(res, lim['guard'])} |")  # fmt: skip
     lines.append("")
-    for name, res in results.items():
+    for name, res in maps.items():
         s = res["shipped"]
         lines += [f"## {name}", "",
                   f"Control step {res['dt']:.3g} s (asset timestep {res['asset_timestep']:g} x "
@@ -402,9 +395,9 @@ def markdown(results: dict, machine: str, runs: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _ordered(results: dict) -> dict:
-    order = [*ENVS, *sorted(set(results) - set(ENVS))]
-    return {name: results[name] for name in order if name in results}
+def _ordered(maps: dict) -> dict:
+    order = [*ENVS, *sorted(set(maps) - set(ENVS))]
+    return {name: maps[name] for name in order if name in maps}
 
 
 def _runs(saved: dict) -> list[dict]:
@@ -414,10 +407,30 @@ def _runs(saved: dict) -> list[dict]:
     ]
 
 
+def rerender(path: pathlib.Path, out: pathlib.Path) -> None:
+    """``--from-json``: marks a saved map's shipped cells from today's configs, rewrites the JSON in
+    place and the page and chart in ``out``."""
+    saved = results.load(path)
+    maps = _ordered(saved["envs"])
+    for name, res in maps.items():
+        remark_shipped(name, res)
+    kept_order = {name: maps[name] for name in saved["envs"]}  # a small diff
+    results.save(path.parent, path.stem, {**saved, "envs": kept_order})
+    results.save(out, path.stem, None, markdown(maps, saved["machine"], _runs(saved)), chart(maps))
+
+
+def cell_plan(name: str, task: dict, args) -> dict:
+    """What one env's map runs: its solver iterations, integrators, episodes and steps."""
+    iterations = sorted({1, task["shipped"]["solver_iterations"]}) if args.quick else list(ITERATIONS)
+    episodes = args.episodes or (4 if args.quick else EPISODES.get(name, EPISODES["default"]))
+    return {"quick": args.quick, "iterations": iterations, "integrators": args.integrators,
+            "episodes": episodes, "steps": args.steps or (50 if args.quick else STEPS)}  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="1 env, 2x2 grid, 4 x 50 steps, for CI")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     parser.add_argument("--envs", nargs="+", choices=envs.names(), default=None)
     parser.add_argument("--integrators", nargs="+", choices=("euler", "rk4"), default=None,
                         help="default: each env's shipped integrator")  # fmt: skip
@@ -428,47 +441,31 @@ def main() -> None:
                         help="re-render a saved map, shipped cells marked from today's configs")  # fmt: skip
     args = parser.parse_args()
     if args.from_json:
-        saved = json.loads(args.from_json.read_text())
-        stem, results = args.from_json.stem, _ordered(saved["envs"])
-        for name, res in results.items():
-            remark_shipped(name, res)
-        kept_order = {name: results[name] for name in saved["envs"]}  # a small diff
-        args.from_json.write_text(json.dumps({**saved, "envs": kept_order}, indent=1))
-        (args.out / f"{stem}.md").write_text(markdown(results, saved["machine"], _runs(saved)))
-        chart(results, args.out / f"{stem}.png")
-        return
+        return rerender(args.from_json, args.out)
     names = args.envs or ([QUICK_ENV] if args.quick else list(ENVS))
     stem = "stability_map_quick" if args.quick else "stability_map"
-    results, runs = {}, []
+    maps, runs = {}, []
     if args.merge and (args.out / f"{stem}.json").exists():
-        old = json.loads((args.out / f"{stem}.json").read_text())
-        results = {k: v for k, v in old["envs"].items() if k not in names}
-        runs = _runs(old) if results else []
-        print(f"keeping {', '.join(results) or 'no envs'} from {args.out / f'{stem}.json'}")
+        old = results.load(args.out / f"{stem}.json")
+        maps = {k: v for k, v in old["envs"].items() if k not in names}
+        runs = _runs(old) if maps else []
+        print(f"keeping {', '.join(maps) or 'no envs'} from {args.out / f'{stem}.json'}")
     t0 = time.perf_counter()
     for name in names:
         task = env_task(name)
-        iterations = sorted({1, task["shipped"]["solver_iterations"]}) if args.quick else list(ITERATIONS)
-        episodes = args.episodes or (4 if args.quick else EPISODES.get(name, EPISODES["default"]))
-        plan = {"quick": args.quick, "iterations": iterations, "integrators": args.integrators,
-                "episodes": episodes, "steps": args.steps or (50 if args.quick else STEPS)}  # fmt: skip
-        results[name] = map_env(task, plan)
+        maps[name] = map_env(task, cell_plan(name, task, args))
     wall = time.perf_counter() - t0
-    results = _ordered(results)
+    maps = _ordered(maps)
 
-    cpu = platform.processor() or platform.machine()
-    machine = f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__}"
-    command = "python experiments/stability_map.py" + (" --quick" if args.quick else "")
+    machine = results.machine()
+    command = "python -m experiments.stability_map" + (" --quick" if args.quick else "")
     if args.envs:
         command += " --envs " + " ".join(args.envs) + (" --merge" if args.merge else "")
-    args.out.mkdir(parents=True, exist_ok=True)
     runs = [*runs, {"command": command, "wall_s": wall, "envs": names}]
     payload = {"machine": machine, "runs": runs, "penetration_bound": PENETRATION_BOUND,
-               "qvel_bound": QVEL_BOUND, "envs": results}  # fmt: skip
-    (args.out / f"{stem}.json").write_text(json.dumps(payload, indent=1))
-    text = markdown(results, machine, runs)
-    (args.out / f"{stem}.md").write_text(text)
-    chart(results, args.out / f"{stem}.png")
+               "qvel_bound": QVEL_BOUND, "envs": maps}  # fmt: skip
+    text = markdown(maps, machine, runs)
+    results.save(args.out, stem, payload, text, chart(maps))
     print(text)
 
 

@@ -1,7 +1,7 @@
 """Where the Ant's simulation first diverges as the timestep grows, per integrator.
 
-    python experiments/stability_sweep.py           # 64 Ants x 2 s of random actions per setting
-    python experiments/stability_sweep.py --quick   # tiny, for CI
+    python -m experiments.stability_sweep           # 64 Ants x 2 s of random actions per setting
+    python -m experiments.stability_sweep --quick   # tiny, for CI
 
 For each integrator and timestep it runs a batch of Ants from Gymnasium's start pose under
 uniform random actions (held for 0.05 s, as in training) and records the fraction whose
@@ -13,7 +13,6 @@ Writes ``experiments/results/stability_sweep.{md,json}``.
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
 
 import jax
@@ -22,11 +21,10 @@ import mujoco
 import numpy as np
 
 import fastrl
+from experiments import results
 from fastrl import physics
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-ANT = ROOT / "fastrl" / "assets" / "ant.xml"
-RESULTS = ROOT / "experiments" / "results"
+ANT = results.ROOT / "fastrl" / "assets" / "ant.xml"
 QPOS0 = np.array([0, 0, 0.75, 1, 0, 0, 0, 0, 1, 0, -1, 0, -1, 0, 1.0])
 TIMESTEPS = [0.001, 0.002, 0.005, 0.01, 0.02, 0.03, 0.04, 0.05]
 
@@ -57,10 +55,31 @@ def run(integrator: str, timestep: float, batch: int, seconds: float, seed: int 
     }  # fmt: skip
 
 
+def markdown(rows: list[dict], batch: int, seconds: float) -> str:
+    """The sweep's table, then each integrator's first timestep with any divergence."""
+    table = results.table(
+        ["integrator", "timestep", "substeps", "guard fired", "blew up (guard or bound)"],
+        [[r["integrator"], str(r["timestep"]), r["substeps"], f"{r['guard_fraction']:.0%}",
+          f"{r['blowup_fraction']:.0%}"] for r in rows],
+        align="lrrrr",
+    )  # fmt: skip
+    lines = ["# Ant stability vs timestep (random actions held 0.05 s)", "",
+             f"Batch {batch}, {seconds} s each. Command: `python -m experiments.stability_sweep`.", "",
+             table]  # fmt: skip
+    for integrator in ("euler", "rk4"):
+        first = next(
+            (r["timestep"] for r in rows if r["integrator"] == integrator and r["blowup_fraction"] > 0), None
+        )
+        lines.append(
+            f"\n{integrator}: first timestep with any divergence: {first if first else 'none in the sweep'}"
+        )
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     args = parser.parse_args()
     timesteps = [0.05] if args.quick else TIMESTEPS
     batch, seconds = (4, 0.2) if args.quick else (64, 2.0)
@@ -69,25 +88,9 @@ def main() -> None:
         for dt in timesteps:
             rows.append(run(integrator, dt, batch, seconds))
             print(rows[-1], flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    name = "stability_sweep_quick" if args.quick else "stability_sweep"
-    (args.out / f"{name}.json").write_text(json.dumps(rows, indent=1))
-    lines = ["# Ant stability vs timestep (random actions held 0.05 s)", "",
-             f"Batch {batch}, {seconds} s each. Command: `python experiments/stability_sweep.py`.", "",
-             "| integrator | timestep | substeps | guard fired | blew up (guard or bound) |",
-             "| --- | ---: | ---: | ---: | ---: |"]  # fmt: skip
-    for r in rows:
-        lines.append(f"| {r['integrator']} | {r['timestep']} | {r['substeps']} | "
-                     f"{r['guard_fraction']:.0%} | {r['blowup_fraction']:.0%} |")  # fmt: skip
-    for integrator in ("euler", "rk4"):
-        first = next(
-            (r["timestep"] for r in rows if r["integrator"] == integrator and r["blowup_fraction"] > 0), None
-        )
-        lines.append(
-            f"\n{integrator}: first timestep with any divergence: {first if first else 'none in the sweep'}"
-        )
-    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    text = markdown(rows, batch, seconds)
+    results.save(args.out, "stability_sweep_quick" if args.quick else "stability_sweep", rows, text)
+    print(text)
 
 
 if __name__ == "__main__":

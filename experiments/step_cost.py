@@ -1,7 +1,7 @@
 """Physics step cost per env, for before/after comparisons of engine changes.
 
-    python experiments/step_cost.py ant,hopper,...          # {env: microseconds per env-step}
-    python experiments/step_cost.py ant,hopper,... --hlo    # {env: digest of the compiled step}
+    python -m experiments.step_cost ant,hopper,...          # {env: microseconds per env-step}
+    python -m experiments.step_cost ant,hopper,... --hlo    # {env: digest of the compiled step}
 
 jax.jit(jax.vmap(physics.step)) at batch 256 from each env's reset states, zero controls; the best of
 5 repeats of 10 steps. Run it from two checkouts alternately (PYTHONPATH=<checkout>) for a ratio.
@@ -11,10 +11,10 @@ with names, metadata and numbering stripped and sorted. Equal digests from two c
 change compiled to the same program for that env, so its step cost cannot have moved.
 """
 
+import argparse
 import hashlib
 import json
 import re
-import sys
 import time
 
 import jax
@@ -22,8 +22,6 @@ import jax.numpy as jnp
 
 import fastrl
 from fastrl import envs, physics
-
-fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
 
 
 def program_digest(m, d) -> str:
@@ -45,13 +43,10 @@ def program_digest(m, d) -> str:
     return hashlib.sha256("\n".join(sorted(ops)).encode()).hexdigest()[:16]
 
 
-out = {}
-for name in sys.argv[1].split(","):
+def step_cost(name: str) -> float:
+    """Microseconds per env-step of ``name``'s physics step at batch 256: the best of 5 repeats."""
     env = envs.make(name)
     m = env.model
-    if "--hlo" in sys.argv:
-        out[name] = program_digest(m, env.reset(jax.random.PRNGKey(0)).data)
-        continue
     keys = jax.random.split(jax.random.PRNGKey(0), 256)
     s = jax.vmap(env.reset)(keys)
     d = s.data
@@ -66,5 +61,24 @@ for name in sys.argv[1].split(","):
             d = f(d, u)
         jax.block_until_ready(d.qpos)
         best = min(best, (time.perf_counter() - t) / 10)
-    out[name] = best * 1e6 / 256
-print(json.dumps(out))
+    return best * 1e6 / 256
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("envs", help="env names, comma-separated (ant,hopper,...)")
+    parser.add_argument("--hlo", action="store_true", help="digest each env's compiled step; time nothing")
+    args = parser.parse_args()
+    out = {}
+    for name in args.envs.split(","):
+        if args.hlo:
+            env = envs.make(name)
+            out[name] = program_digest(env.model, env.reset(jax.random.PRNGKey(0)).data)
+        else:
+            out[name] = step_cost(name)
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
+    main()

@@ -1,10 +1,10 @@
 """Time to return: a fastrl learner against the same algorithm in Brax, same task, same machine.
 
-    python experiments/time_to_return.py --task inverted_pendulum --seeds 0 1 2   # ~10 min
-    python experiments/time_to_return.py --task ant --seeds 0 1 2                 # ~1 h on 2 cores
-    python experiments/time_to_return.py --task hopper_sac --seeds 0 --stop-at-target
-    python experiments/time_to_return.py --quick                                  # tiny, for CI
-    python experiments/time_to_return.py --task ant --brax-from OLD.json  # re-run fastrl, reuse Brax's
+    python -m experiments.time_to_return --task inverted_pendulum --seeds 0 1 2   # ~10 min
+    python -m experiments.time_to_return --task ant --seeds 0 1 2                 # ~1 h on 2 cores
+    python -m experiments.time_to_return --task hopper_sac --seeds 0 --stop-at-target
+    python -m experiments.time_to_return --quick                                  # tiny, for CI
+    python -m experiments.time_to_return --task ant --brax-from OLD.json  # re-run fastrl, reuse Brax's
 
 For each seed it runs Brax's learner (``experiments/peers/brax_ppo.py`` for PPO,
 ``experiments/peers/brax_train.py`` for SAC, ES and APG, in ``.venv-peers``), then ``python -m
@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import pathlib
 import subprocess
 import sys
@@ -67,11 +66,11 @@ import time
 
 import numpy as np
 
+from experiments import results
 from fastrl.xla_flags import peer_environ
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = results.ROOT
 PEERS = ROOT / ".venv-peers" / "bin" / "python"
-RESULTS = ROOT / "experiments" / "results"
 
 
 def _every(updates: int) -> list[str]:
@@ -236,7 +235,7 @@ def run_fastrl(
 
 def reused_brax_runs(path: pathlib.Path, task: str, seeds: list[int]) -> tuple[list[dict], str]:
     """Brax's runs for ``seeds`` from a saved result, and a note for the table saying so."""
-    saved = json.loads(path.read_text())
+    saved = results.load(path)
     if saved.get("task") != task:
         raise SystemExit(f"--brax-from {path} holds task {saved.get('task')!r}, not {task!r}")
     runs = [r for r in saved["runs"] if r["learner"] == "brax" and r["seed"] in seeds]
@@ -274,9 +273,7 @@ def summarize(runs: list[dict]) -> dict:
 
 def write(result: dict, out: pathlib.Path, stem: str) -> None:
     """The JSON, a markdown table and the chart, all from ``result``."""
-    out.mkdir(parents=True, exist_ok=True)
     result["summary"] = summarize(result["runs"])
-    (out / f"{stem}.json").write_text(json.dumps(result, indent=1))
     target = result["target"]
     algo = TASKS.get(result["task"], {}).get("algo", "ppo").upper()
     lines = [f"# Time to eval return {target:g}: {result['task']}, fastrl {algo} vs Brax {algo}", "",
@@ -301,16 +298,12 @@ def write(result: dict, out: pathlib.Path, stem: str) -> None:
         ]
     if result.get("note"):
         lines += ["", result["note"]]
-    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
-    _plot(result["runs"], out / f"{stem}.png", target, result["task"])
+    results.save(out, stem, result, "\n".join(lines), _plot(result["runs"], target, result["task"]))
 
 
-def _plot(runs, path, target, task):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def _plot(runs: list[dict], target: float, task: str):
+    """Every run's evaluation return against its wall-clock seconds, the target dashed."""
+    plt = results.pyplot()
     fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
     colors = {"brax": "tab:orange", "fastrl": "tab:blue"}
     for r in runs:
@@ -324,8 +317,7 @@ def _plot(runs, path, target, task):
     ax.set_xlabel("wall-clock seconds (start-up and compile included)")
     ax.set_ylabel("eval episode return")
     ax.legend(fontsize=7)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def main(argv=None) -> None:
@@ -347,10 +339,10 @@ def main(argv=None) -> None:
         help="reuse the Brax runs of a saved result JSON instead of running Brax again (the table says so)",
     )  # fmt: skip
     parser.add_argument("--from-json", type=pathlib.Path, help="re-render the table and chart of a saved run")
-    parser.add_argument("--out", type=pathlib.Path, default=RESULTS)
+    parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     args = parser.parse_args(argv)
     if args.from_json:
-        result = json.loads(args.from_json.read_text())
+        result = results.load(args.from_json)
         write(result, args.out, f"time_to_return_{result['task']}")
         return
     task = TASKS[args.task]
@@ -373,9 +365,9 @@ def main(argv=None) -> None:
         runs.append({"learner": "fastrl", "seed": seed, "curve": curve})
     for r in runs:
         r["time_to_target"] = time_to(r["curve"], task["target"])
-    command = "python experiments/time_to_return.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    result = {"task": args.task, "target": task["target"], "command": command.strip(),
-              "machine": f"{os.cpu_count()} CPU cores", "runs": runs}  # fmt: skip
+    command = results.command(None if argv is None else [__file__, *argv])
+    result = {"task": args.task, "target": task["target"], "command": command,
+              "machine": results.machine(), "runs": runs}  # fmt: skip
     if note:
         result["note"] = note
     write(result, args.out, f"time_to_return_{args.task}" + ("_quick" if args.quick else ""))

@@ -1,7 +1,7 @@
 """Where a trained Ant's trajectories part: fastrl against MuJoCo C, and MuJoCo C against itself.
 
-    python experiments/trajectory_parting.py RUN_DIR                  # 8 episodes per integrator
-    python experiments/trajectory_parting.py --quick --out DIR        # tiny, for CI
+    python -m experiments.trajectory_parting RUN_DIR                  # 8 episodes per integrator
+    python -m experiments.trajectory_parting --quick --out DIR        # tiny, for CI
 
 Closed loop, the run's deterministic policy, each episode from the same initial state (fastrl's
 evaluation draws, seed 0), at Euler and at RK4 (fastrl at the run's solver iterations for Euler,
@@ -20,10 +20,9 @@ Writes ``results/trajectory_parting.{md,json}``.
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import pathlib
 import sys
+import tempfile
 
 import jax
 import jax.numpy as jnp
@@ -31,11 +30,11 @@ import mujoco
 import numpy as np
 
 import fastrl
+from experiments import results
+from experiments.reference_scores import quick_run
 from fastrl import envs, physics, reference
 from fastrl.policy import load_run
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "experiments" / "results"
 THRESHOLDS = (1e-4, 1e-3, 1e-2, 1e-1)
 
 
@@ -128,7 +127,7 @@ def render(rows: list[dict], command: str) -> str:
     lines = [
         "# Where a trained Ant's trajectories part: fastrl against MuJoCo C",
         "",
-        f"Date: {datetime.date.today()}. 2-core x86_64 CPU. Command: `{command}`.",
+        f"Date: {results.today()}. Machine: {results.machine()}. Command: `{command}`.",
         "First step (of 1000) at which max |qpos difference| exceeds 1e-4, 1e-3, 1e-2, 1e-1; '-': "
         "never. One-step error: max |qpos| difference after one fastrl env step from MuJoCo's "
         "state (first 400 steps).",
@@ -152,27 +151,19 @@ def main(argv=None) -> int:
     )
     parser.add_argument("run_dir", nargs="?", help="an Ant run folder")
     parser.add_argument("--episodes", type=int, default=8)
-    parser.add_argument("--out", default=str(RESULTS))
+    parser.add_argument("--out", default=str(results.RESULTS))
     parser.add_argument("--quick", action="store_true", help="an untrained Ant, 1 episode of 30 steps")
     args = parser.parse_args(argv)
     out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    command = "python experiments/trajectory_parting.py " + " ".join(
-        argv if argv is not None else sys.argv[1:]
-    )
+    command = results.command(None if argv is None else [__file__, *argv])
     if args.quick:
-        import tempfile
-
-        from reference_scores import quick_run  # experiments/reference_scores.py
-
         with tempfile.TemporaryDirectory() as tmp:
             rows = measure(quick_run(pathlib.Path(tmp), "ant"), 1, length=30)
         name = "trajectory_parting_quick"
     else:
         rows = measure(args.run_dir, args.episodes)
         name = "trajectory_parting"
-    (out / f"{name}.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1))
-    (out / f"{name}.md").write_text(render(rows, command))
+    results.save(out, name, {"command": command, "rows": rows}, render(rows, command))
     print(f"wrote {out / name}.{{md,json}}")
     return 0
 

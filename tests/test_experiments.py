@@ -3,11 +3,13 @@
 The four whose tiny mode takes over half a minute on two cores (each compiles several learners
 or a two-device split) are ``slow`` (``pytest -m slow tests/test_experiments.py``); what they
 exercise underneath (the vector env, two devices, divergence detection, the solver settings) has
-its own quick tests in ``tests/envs`` and ``tests/train``."""
+its own quick tests in ``tests/envs`` and ``tests/train``. The shared results module and the
+scripts' shape (short functions, each runnable as ``python -m experiments.<name>``) are checked
+first, in a second (no script runs)."""
 
 from __future__ import annotations
 
-import importlib.util
+import ast
 import json
 import pathlib
 import subprocess
@@ -16,18 +18,81 @@ import sys
 import pytest
 from omegaconf import OmegaConf
 
+from experiments import results
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCRIPTS = sorted(p for p in (ROOT / "experiments").glob("*.py") if p.stem not in ("__init__", "results"))
+HELPERS = {"shipped"}  # imported by the scripts, not run
+MAX_LINES = 60
+
+
+def _module(name: str, *args: str) -> list[str]:
+    """The command line of ``python -m experiments.<name> ARGS``."""
+    return [sys.executable, "-m", f"experiments.{name}", *args]
 
 
 def _run_quick(script: str, out: pathlib.Path, result: str):
-    """Runs ``experiments/<script> --quick`` into ``out`` and returns its JSON result."""
-    cmd = [sys.executable, str(ROOT / "experiments" / script), "--quick", "--out", str(out)]
-    subprocess.run(cmd, check=True, cwd=ROOT, timeout=900)
+    """Runs ``python -m experiments.<script> --quick`` into ``out`` and returns its JSON result."""
+    subprocess.run(_module(script, "--quick", "--out", str(out)), check=True, cwd=ROOT, timeout=900)
     return json.loads((out / result).read_text())
 
 
+def test_results_table_number_save_load_round_trip(tmp_path):
+    assert results.number(1234567) == "1,234,567" and results.number(0.000123) == "1.23e-04"
+    assert results.number(3.14159) == "3.14" and results.number(None) == results.number(float("nan")) == "–"
+    table = results.table(["env", "steps/s", "note"], [["ant", 12345, "x"], ["hopper", 0.5, None]])
+    assert table.splitlines() == [
+        "| env | steps/s | note |",
+        "| --- | ---: | --- |",
+        "| ant | 12,345 | x |",
+        "| hopper | 0.5 | – |",
+    ]
+    assert results.table(["a", "b"], [], align="lr").splitlines()[1] == "| --- | ---: |"
+    with pytest.raises(ValueError):
+        results.table(["a", "b"], [[1]])
+    record = {"machine": results.machine(), "command": results.command(["x/exp.py", "--quick"]),
+              "rows": [{"k": 1, "v": [0.5, None]}]}  # fmt: skip
+    assert record["command"] == "python -m experiments.exp --quick"
+    written = results.save(tmp_path / "out", "exp", record, table)
+    assert [p.name for p in written] == ["exp.json", "exp.md"]
+    assert results.load("exp", tmp_path / "out") == results.load(written[0]) == record
+    assert (tmp_path / "out" / "exp.md").read_text() == table + "\n"
+    assert results.save(tmp_path / "out", "page", None, "# page") == [tmp_path / "out" / "page.md"]
+
+
+def _path_hacks(tree: ast.AST) -> list[int]:
+    """Lines that reach other files through the import path: ``sys.path`` or importlib's
+    ``spec_from_file_location``."""
+    return [
+        n.lineno
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Attribute)
+        and (n.attr == "spec_from_file_location" or (n.attr == "path" and ast.unparse(n.value) == "sys"))
+    ]
+
+
+def test_experiment_functions_are_short_and_every_script_runs_as_a_module():
+    """No function in ``experiments/*.py`` is over ``MAX_LINES`` lines; every script has a
+    ``__main__`` guard (``python -m experiments.<name>`` runs it, importing it runs nothing), and
+    none reaches its siblings through ``sys.path``: they import ``experiments.<name>``."""
+    long, unguarded, hacks = [], [], []
+    for path in [*SCRIPTS, ROOT / "experiments" / "results.py"]:
+        tree = ast.parse(path.read_text())
+        for fn in ast.walk(tree):
+            lines = fn.end_lineno - fn.lineno + 1 if isinstance(fn, ast.FunctionDef) else 0
+            if lines > MAX_LINES:
+                long.append(f"{path.name}:{fn.lineno} {fn.name} ({lines} lines)")
+        hacks += [f"{path.name}:{line}" for line in _path_hacks(tree)]
+        guarded = any(isinstance(n, ast.If) and "__main__" in ast.unparse(n.test) for n in tree.body)
+        if path.stem not in HELPERS and path.stem != "results" and not guarded:
+            unguarded.append(path.name)
+    assert not long, f"functions over {MAX_LINES} lines:\n  " + "\n  ".join(long)
+    assert not unguarded, f"scripts without an `if __name__ == '__main__':` guard: {unguarded}"
+    assert not hacks, f"imports by path: {hacks}"
+
+
 def test_bench_physics_quick(tmp_path):
-    result = _run_quick("bench_physics.py", tmp_path, "physics_throughput_quick.json")
+    result = _run_quick("bench_physics", tmp_path, "physics_throughput_quick.json")
     engines = {r["engine"] for r in result["rows"]}
     assert "fastrl" in engines and "MuJoCo C rollout (2 thread)" in engines
     assert all(r["steps_per_s"] > 0 for r in result["rows"])
@@ -35,7 +100,7 @@ def test_bench_physics_quick(tmp_path):
 
 
 def test_bench_contacts_quick(tmp_path):
-    rows = _run_quick("bench_contacts.py", tmp_path, "contacts_throughput_quick.json")
+    rows = _run_quick("bench_contacts", tmp_path, "contacts_throughput_quick.json")
     shipped = OmegaConf.load(ROOT / "conf" / "experiment" / "ant_ppo.yaml").env
     one = f"fastrl {shipped.integrator} 0.01x5, {shipped.solver_iterations} iters"
     assert [r["engine"] for r in rows] == [one, f"{one}, 2 devices"]  # the batch split over 2 CPU devices
@@ -45,14 +110,14 @@ def test_bench_contacts_quick(tmp_path):
 
 @pytest.mark.slow
 def test_stability_sweep_quick(tmp_path):
-    rows = _run_quick("stability_sweep.py", tmp_path, "stability_sweep_quick.json")
+    rows = _run_quick("stability_sweep", tmp_path, "stability_sweep_quick.json")
     assert {r["integrator"] for r in rows} == {"euler", "rk4"}
     assert all(0.0 <= r["guard_fraction"] <= r["blowup_fraction"] <= 1.0 for r in rows)
 
 
 @pytest.mark.slow
 def test_bench_envs_quick(tmp_path):
-    result = _run_quick("bench_envs.py", tmp_path, "env_throughput_quick.json")
+    result = _run_quick("bench_envs", tmp_path, "env_throughput_quick.json")
     assert all(r["control_steps_per_s"] > 0 and r["diverged"] == 0 for r in result["envs"])
     split = [r["split_2_devices"] for r in result["envs"]]
     assert all(r["engine"] == "fastrl, 2 devices" and r["control_steps_per_s"] > 0 for r in split)
@@ -64,7 +129,7 @@ def test_bench_envs_quick(tmp_path):
 
 
 def test_speed_accuracy_quick(tmp_path):
-    result = _run_quick("speed_accuracy.py", tmp_path, "speed_accuracy_quick.json")
+    result = _run_quick("speed_accuracy", tmp_path, "speed_accuracy_quick.json")
     (res,) = result["models"].values()
     rows = res["rows"]
     res_rows_before = [dict(r) for r in rows]
@@ -84,16 +149,15 @@ def test_speed_accuracy_quick(tmp_path):
     for r in rows:
         r["shipped"] = False
     saved.write_text(json.dumps(result))
-    script = ROOT / "experiments" / "speed_accuracy.py"
-    subprocess.run([sys.executable, str(script), "--quick", "--from-json", "--out", str(tmp_path)],
-                   check=True, cwd=ROOT, timeout=300)  # fmt: skip
+    cmd = _module("speed_accuracy", "--quick", "--from-json", "--out", str(tmp_path))
+    subprocess.run(cmd, check=True, cwd=ROOT, timeout=300)
     (again,) = json.loads(saved.read_text())["models"].values()
     assert [r["shipped"] for r in again["rows"]] == [r["shipped"] for r in res_rows_before]
     assert "marked anew" in (tmp_path / "speed_accuracy_quick.md").read_text()
 
 
 def test_conservation_quick(tmp_path):
-    result = _run_quick("conservation.py", tmp_path, "conservation_quick.json")
+    result = _run_quick("conservation", tmp_path, "conservation_quick.json")
     dts = result["protocol"]["timesteps"]
     assert len(dts) == 2
     # The shared float64 measurement agrees with fastrl's own momentum and energy at the kick.
@@ -128,7 +192,7 @@ def test_conservation_quick(tmp_path):
 
 
 def test_stability_map_quick(tmp_path):
-    result = _run_quick("stability_map.py", tmp_path, "stability_map_quick.json")
+    result = _run_quick("stability_map", tmp_path, "stability_map_quick.json")
     (res,) = result["envs"].values()
     rows = res["rows"]
     assert len(rows) == 4 and sum(r["shipped"] for r in rows) == 1
@@ -152,22 +216,16 @@ def test_stability_map_quick(tmp_path):
     saved.write_text(json.dumps(result))
     again = tmp_path / "again"
     again.mkdir()
-    script = str(ROOT / "experiments" / "stability_map.py")
-    cmd = [
-        sys.executable,
-        script,
-        "--from-json",
-        str(tmp_path / "stability_map_quick.json"),
-        "--out",
-        str(again),
-    ]
+    cmd = _module(
+        "stability_map", "--from-json", str(tmp_path / "stability_map_quick.json"), "--out", str(again)
+    )
     subprocess.run(cmd, check=True, cwd=ROOT, timeout=300)
     assert (again / "stability_map_quick.md").read_text() == text
 
 
 @pytest.mark.slow
 def test_learner_stability_quick(tmp_path):
-    result = _run_quick("learner_stability.py", tmp_path, "learner_stability_quick.json")
+    result = _run_quick("learner_stability", tmp_path, "learner_stability_quick.json")
     assert [c["algo"] for c in result["cells"]] == ["ppo", "sac"]
     for cell in result["cells"]:
         by_lr = {a["learning_rate"]: a for a in cell["agents"]}
@@ -182,7 +240,7 @@ def test_learner_stability_quick(tmp_path):
 
 def test_time_to_return_quick(tmp_path):
     stem = "time_to_return_inverted_pendulum"
-    result = _run_quick("time_to_return.py", tmp_path, f"{stem}_quick.json")
+    result = _run_quick("time_to_return", tmp_path, f"{stem}_quick.json")
     (run,) = result["runs"]
     assert run["learner"] == "fastrl" and run["curve"], run
     seconds, steps, _ = run["curve"][-1]
@@ -190,17 +248,18 @@ def test_time_to_return_quick(tmp_path):
     assert result["summary"]["fastrl"]["runs"] == 1
     # the saved run re-renders with --from-json
     again = tmp_path / "again"
-    script, saved = ROOT / "experiments" / "time_to_return.py", tmp_path / f"{stem}_quick.json"
-    subprocess.run([sys.executable, str(script), "--from-json", str(saved), "--out", str(again)], check=True)
+    saved = tmp_path / f"{stem}_quick.json"
+    subprocess.run(
+        _module("time_to_return", "--from-json", str(saved), "--out", str(again)), check=True, cwd=ROOT
+    )
     md = (again / "time_to_return_inverted_pendulum.md").read_text()
     assert md.startswith("# Time to eval return 950: inverted_pendulum") and "| fastrl | 1 |" in md
     assert (again / "time_to_return_inverted_pendulum.png").stat().st_size > 0
 
 
 def test_time_to_return_reuses_saved_brax_runs_and_says_so(tmp_path):
-    spec = importlib.util.spec_from_file_location("ttr", ROOT / "experiments" / "time_to_return.py")
-    ttr = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(ttr)
+    from experiments import time_to_return as ttr
+
     brax = [{"learner": "brax", "seed": s, "curve": [[10.0 + s, 1000, 900.0]]} for s in (0, 1)]
     saved = tmp_path / "saved.json"
     runs = brax + [{"learner": "fastrl", "seed": 0}]
@@ -215,7 +274,7 @@ def test_time_to_return_reuses_saved_brax_runs_and_says_so(tmp_path):
 
 @pytest.mark.slow
 def test_solver_iterations_quick(tmp_path):
-    rows = _run_quick("solver_iterations.py", tmp_path, "solver_iterations_quick.json")
+    rows = _run_quick("solver_iterations", tmp_path, "solver_iterations_quick.json")
     assert [r["name"] for r in rows] == ["inverted_pendulum", "hopper"]
     for r in rows:
         converged = [r["mujoco_converged"][str(k)] for k in range(1, 9)]
@@ -225,14 +284,14 @@ def test_solver_iterations_quick(tmp_path):
 
 
 def test_float32_floor_quick(tmp_path):
-    result = _run_quick("float32_floor.py", tmp_path, "float32_floor_quick.json")
+    result = _run_quick("float32_floor", tmp_path, "float32_floor_quick.json")
     (row,) = result["scenes"].values()
     assert row["steps"] == 12 and 0 <= row["once_mm"] < 1 and row["per_step_mm"] >= 0  # 0.05 s of 4 ms steps
     assert (tmp_path / "float32_floor_quick.md").read_text().startswith("# The float32 floor")
 
 
 def test_first_minute_quick(tmp_path):
-    result = _run_quick("first_minute.py", tmp_path, "first_minute_quick.json")
+    result = _run_quick("first_minute", tmp_path, "first_minute_quick.json")
     cold, cached = result["results"]["inverted_pendulum"].values()
     assert cold["cache"] == "miss" and cached["cache"] == "hit"
     assert cold["tracing_s"] > 0 and cached["tracing_s"] == 0  # the traced program read back

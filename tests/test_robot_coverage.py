@@ -7,7 +7,6 @@ the ``dev`` extra: a missing wheel fails these tests (at collection), it never s
 from __future__ import annotations
 
 import importlib
-import importlib.util
 import json
 import math
 import pathlib
@@ -19,23 +18,11 @@ import mujoco
 import numpy as np
 import pytest
 
+from experiments import robot_coverage
 from fastrl import robot_scenes
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCENES = 41  # the count in envpool-assets 0.4.0; a new wheel version that changes it should say so
-
-
-def _experiment(name: str):
-    """Imports ``experiments/<name>.py`` (the scripts import each other as siblings)."""
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, ROOT / "experiments" / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-robot_coverage = _experiment("robot_coverage")
 PATHS = robot_scenes.scene_paths()
 
 
@@ -69,7 +56,7 @@ def test_quick_run(tmp_path):
     """``--quick``: the Go1 feet-only scene tracks MuJoCo C as written (one Newton iteration, MuJoCo's
     line search) and when both solvers converge, stays finite
     under random controls, and the refused scenes are listed by feature in the page."""
-    cmd = [sys.executable, str(ROOT / "experiments" / "robot_coverage.py"), "--quick", "--out", str(tmp_path)]
+    cmd = [sys.executable, "-m", "experiments.robot_coverage", "--quick", "--out", str(tmp_path)]
     subprocess.run(cmd, check=True, cwd=ROOT, timeout=300)
     result = json.loads((tmp_path / "robot_coverage_quick.json").read_text())
     summary, rows = result["summary"], result["rows"]
