@@ -101,8 +101,11 @@ def save(
 ) -> list[Path]:
     """Writes ``out/<stem>.json`` (``record``), ``out/<stem>.md`` and ``out/<stem>.png`` (a
     matplotlib figure at ``dpi``, then closed), those given (``record=None``: no JSON, for a page
-    re-rendered from a record kept elsewhere); returns the paths written."""
+    re-rendered from a record kept elsewhere); returns the paths written. A record that is a
+    dict and names no ``date`` (nor ``meta.date``) gets today's, which the docs show beside it."""
     out = Path(out)
+    if isinstance(record, dict) and not (record.get("date") or (record.get("meta") or {}).get("date")):
+        record = {**record, "date": today()}
     out.mkdir(parents=True, exist_ok=True)
     written = []
     if record is not None:

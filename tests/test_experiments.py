@@ -55,7 +55,10 @@ def test_results_table_number_save_load_round_trip(tmp_path):
     assert record["command"] == "python -m experiments.exp --quick"
     written = results.save(tmp_path / "out", "exp", record, table)
     assert [p.name for p in written] == ["exp.json", "exp.md"]
-    assert results.load("exp", tmp_path / "out") == results.load(written[0]) == record
+    saved = {**record, "date": results.today()}  # a dict record without a date gets today's
+    assert results.load("exp", tmp_path / "out") == results.load(written[0]) == saved
+    dated = {"meta": {"date": "2026-01-02"}}  # a record that names its date keeps it
+    assert results.load(results.save(tmp_path / "out", "dated", dated)[0]) == dated
     assert (tmp_path / "out" / "exp.md").read_text() == table + "\n"
     assert results.save(tmp_path / "out", "page", None, "# page") == [tmp_path / "out" / "page.md"]
 
