@@ -23,7 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from experiments import results
-from experiments.results import load, table
+from experiments.results import load, number, table
 
 PAGES = [results.ROOT / "README.md", *sorted((results.ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(r"(<!-- results: (\S+) -->\n)(.*?)(<!-- /results -->)", re.S)
@@ -242,7 +242,7 @@ def robot_block() -> str:
         ["float32 free root within 1 cm of MuJoCo C", f"{s['root_f32_within_1cm']} of {s['with_root']}"],
         [
             "batch-1024 speed against `mujoco.rollout` (2 threads)",
-            f"{timed} timed: {low:.4f}x to {high:.2f}x",
+            f"{timed} timed: {number(low, 2)}x to {number(high, 2)}x",
         ],
     ]
     return (
@@ -345,7 +345,7 @@ def _speed_rows() -> list[tuple[str, str, str, str]]:
          f"{vec_rk4} / {vec_train}", "env_throughput_ant"),
         ("Humanoid at its training setting, equal or lower error", "MuJoCo C", humanoid, "speed_accuracy"),
         (f"Robot scenes at batch 1024 ({timed} timed)", "MuJoCo C `rollout`, 2 threads",
-         f"{low:.4f}x to {high:.2f}x", "robot_coverage"),
+         f"{number(low, 2)}x to {number(high, 2)}x", "robot_coverage"),
     ]  # fmt: skip
 
 
