@@ -204,7 +204,8 @@ def main() -> None:
     rows = measure(args.quick)
     name = "contacts_throughput_quick" if args.quick else "contacts_throughput"
     text = markdown(rows)
-    results.save(args.out, name, rows, text, chart(rows), dpi=120)
+    record = {"machine": results.machine(), "command": results.command(), "rows": rows}
+    results.save(args.out, name, record, text, chart(rows), dpi=120)
     print(text)
 
 

@@ -86,7 +86,7 @@ def physics_block() -> str:
 def contacts_best() -> dict[str, dict]:
     """Each engine's best batch in the Ant-with-contacts benchmark."""
     best: dict[str, dict] = {}
-    for r in load("contacts_throughput"):
+    for r in load("contacts_throughput")["rows"]:
         if r["engine"] not in best or r["control_steps_per_s"] > best[r["engine"]]["control_steps_per_s"]:
             best[r["engine"]] = r
     return best
@@ -102,7 +102,7 @@ def contacts_block() -> str:
     ]
     return (
         table(["engine", "best control steps/s", "at batch", "vs EnvPool"], body)
-        + f"\n\n{link('contacts_throughput')}"
+        + f"\n\n{date(load('contacts_throughput'))}; {link('contacts_throughput')}"
     )
 
 

@@ -103,7 +103,7 @@ def test_bench_physics_quick(tmp_path):
 
 
 def test_bench_contacts_quick(tmp_path):
-    rows = _run_quick("bench_contacts", tmp_path, "contacts_throughput_quick.json")
+    rows = _run_quick("bench_contacts", tmp_path, "contacts_throughput_quick.json")["rows"]
     shipped = OmegaConf.load(ROOT / "conf" / "experiment" / "ant_ppo.yaml").env
     one = f"fastrl {shipped.integrator} 0.01x5, {shipped.solver_iterations} iters"
     assert [r["engine"] for r in rows] == [one, f"{one}, 2 devices"]  # the batch split over 2 CPU devices
