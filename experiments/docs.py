@@ -27,7 +27,6 @@ from experiments.results import load, number, table
 
 PAGES = [results.ROOT / "README.md", *sorted((results.ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(r"(<!-- results: (\S+) -->\n)(.*?)(<!-- /results -->)", re.S)
-MACHINE = "this project's 2-core x86_64 CPU VM (24 GiB, no accelerator), JAX 0.10.2, MuJoCo 4.0.0"
 TASKS = (
     "inverted_pendulum",
     "ant",
@@ -48,16 +47,21 @@ def date(record: dict) -> str:
     return record.get("date") or (record.get("meta") or {}).get("date") or "–"
 
 
-def link(stem: str, ext: str = "md") -> str:
-    return f"[{stem}](experiments/results/{stem}.{ext})"
+def link(stem: str) -> str:
+    return f"[{stem}](experiments/results/{stem}.md)"
+
+
+def source(stem: str) -> str:
+    """The line under a block: its record's date and a link to its full page."""
+    return f"\n\n{date(load(stem))}; {link(stem)}"
 
 
 # --------------------------------------------------------------------------- the blocks
 
 
-def physics_throughput(rows: list[dict] | None = None) -> list[list]:
+def physics_throughput() -> list[list]:
     """Best steps/s per integrator: fastrl against MuJoCo C's rollout on both threads."""
-    rows = rows or load("physics_throughput")["rows"]
+    rows = load("physics_throughput")["rows"]
     out = []
     for integrator in ("euler", "rk4"):
         mine = [r for r in rows if r["integrator"] == integrator]
@@ -77,10 +81,7 @@ def physics_throughput(rows: list[dict] | None = None) -> list[list]:
 
 def physics_block() -> str:
     header = ["integrator", "fastrl steps/s", "at batch", "MuJoCo C rollout, 2 threads", "ratio"]
-    return (
-        table(header, physics_throughput())
-        + f"\n\n{date(load('physics_throughput'))}; {link('physics_throughput')}"
-    )
+    return table(header, physics_throughput()) + source("physics_throughput")
 
 
 def contacts_best() -> dict[str, dict]:
@@ -100,9 +101,8 @@ def contacts_block() -> str:
         [r["engine"], r["control_steps_per_s"], r["batch"], ratio(r["control_steps_per_s"], envpool)]
         for r in rows
     ]
-    return (
-        table(["engine", "best control steps/s", "at batch", "vs EnvPool"], body)
-        + f"\n\n{date(load('contacts_throughput'))}; {link('contacts_throughput')}"
+    return table(["engine", "best control steps/s", "at batch", "vs EnvPool"], body) + source(
+        "contacts_throughput"
     )
 
 
@@ -130,7 +130,7 @@ def env_block() -> str:
         "EnvPool, 2 threads",
         "ratio (2 devices)",
     ]
-    return table(header, rows) + f"\n\n{date(record)}; {link('env_throughput')}"
+    return table(header, rows) + source("env_throughput")
 
 
 def vector_block() -> str:
@@ -156,7 +156,7 @@ def vector_block() -> str:
         "RK4, 2 devices",
         "training settings, 2 devices",
     ]
-    return table(header, rows) + f"\n\n{date(record)}; {link('env_throughput_ant')}"
+    return table(header, rows) + source("env_throughput_ant")
 
 
 def time_to_return(task: str) -> dict:
@@ -189,11 +189,7 @@ def _seconds(side: dict) -> str:
 def time_to_return_block() -> str:
     rows = []
     for t in map(time_to_return, TASKS):
-        task = (
-            t["task"]
-            if "_" in t["task"] and t["task"].rsplit("_", 1)[1] in ("sac", "es", "apg")
-            else f"{t['task']}_ppo"
-        )
+        task = t["task"] if t["task"].endswith(("_sac", "_es", "_apg")) else f"{t['task']}_ppo"
         rows.append([task, t["target"], _seconds(t["fastrl"]), _seconds(t["brax"]), t["ratio"], t["date"]])
     header = ["task / learner", "target", "fastrl: median time (seeds reaching)", "Brax", "time ratio", "run"]
     return (
@@ -218,7 +214,7 @@ def first_minute_block() -> str:
         "of it tracing, s",
         "env steps/s",
     ]
-    return table(header, rows, align="llrrrr") + f"\n\n{date(record)}; {link('first_minute')}"
+    return table(header, rows, align="llrrrr") + source("first_minute")
 
 
 def robot_speed(rows: list[dict]) -> tuple[int, float, float]:
@@ -245,10 +241,7 @@ def robot_block() -> str:
             f"{timed} timed: {number(low, 2)}x to {number(high, 2)}x",
         ],
     ]
-    return (
-        table(["MuJoCo Menagerie and Playground scenes", "count"], rows)
-        + f"\n\n{date(record)}; {link('robot_coverage')}"
-    )
+    return table(["MuJoCo Menagerie and Playground scenes", "count"], rows) + source("robot_coverage")
 
 
 def speed_accuracy_rows() -> list[list]:
@@ -287,7 +280,7 @@ def speed_accuracy_block() -> str:
         "ratio",
     ]
     body = table(header, speed_accuracy_rows(), align="llrrrr")
-    return body + f"\n\n{date(load('speed_accuracy'))}; {link('speed_accuracy')}"
+    return body + source("speed_accuracy")
 
 
 def reference_block() -> str:
@@ -303,7 +296,7 @@ def reference_block() -> str:
         "Gymnasium v5 (MuJoCo C)",
         "episodes",
     ]
-    return table(header, rows, align="lrllr") + f"\n\n{date(record)}; {link('reference_scores')}"
+    return table(header, rows, align="lrllr") + source("reference_scores")
 
 
 def scale_block() -> str:
@@ -372,8 +365,7 @@ def _learning_rows() -> list[tuple[str, str, str, str]]:
 def headline_block() -> str:
     rows = []
     for measure, peer, value, stem in _speed_rows() + _learning_rows():
-        record = load(stem)
-        rows.append([measure, peer, value, link(stem), date(record) if isinstance(record, dict) else "–"])
+        rows.append([measure, peer, value, link(stem), date(load(stem))])
     header = ["measure", "peer, same machine and run", "fastrl (ratio: fastrl / peer)", "record", "run"]
     return table(header, rows)
 
