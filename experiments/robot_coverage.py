@@ -51,6 +51,7 @@ import collections
 import copy
 import dataclasses
 import json
+import os
 import pathlib
 import re
 import subprocess
@@ -69,6 +70,7 @@ from fastrl.physics import io as physics_io
 
 TRACK_TOL = 1e-4
 TOL = "1e-4"  # TRACK_TOL as the page writes it
+MEMORY_SHARE = 0.6  # of physical memory: the most the batched timing program may plan to use at once
 ROOT_TOL = 0.01  # m: float32 root vs MuJoCo C
 QUICK_SCENES = (
     # small (nq 19) and quick to compile; GJK/EPA scenes compile for a minute, so none is here
@@ -121,6 +123,8 @@ class SceneResult:
     random_mujoco_unstable: int | None = None  # first step MuJoCo C (float64) warns of a bad qacc
     shortened: str = ""  # why the tracking and random runs were cut short (--budget), if they were
     fastrl_sps: float | None = None  # --throughput: control steps/s at batch 1024
+    # the batch stepped as lax.map over vmapped chunks of this many envs (one vmap would not fit)
+    vmap_chunk: int | None = None
     mujoco_sps: float | None = None  # --throughput: mujoco.rollout, 2 threads
 
     def tracks(self, variant: str) -> bool:
@@ -388,6 +392,40 @@ def _track(row: SceneResult, mj: mujoco.MjModel, model: physics.Model, args) -> 
     _float32(row, mj, args)
 
 
+def _steps_program(model: physics.Model, batched: physics.Data, steps: int, chunk: int | None):
+    """The compiled ``steps`` steps of the batch: one vmapped step, or (``chunk``) ``lax.map``
+    over vmapped chunks of that many envs, one after another in the same program."""
+
+    step = jax.vmap(lambda di: physics.step(model, di))
+
+    def step_all(d):
+        if chunk is None:
+            return step(d)
+        n = jax.tree.leaves(d)[0].shape[0] // chunk  # (lax.map's batch_size cannot split empty fields)
+        split = jax.lax.map(step, jax.tree.map(lambda x: x.reshape(n, chunk, *x.shape[1:]), d))
+        return jax.tree.map(lambda x: x.reshape(n * chunk, *x.shape[2:]), split)
+
+    def run(d):
+        return jax.lax.scan(lambda d, _: (step_all(d), None), d, None, length=steps)[0]
+
+    return jax.jit(run).lower(batched).compile()
+
+
+def _fitting_program(model: physics.Model, batched: physics.Data, steps: int):
+    """``_steps_program`` for the whole batch at once if XLA's plan for its scratch memory fits
+    in ``MEMORY_SHARE`` of this machine's memory, else in the largest power-of-two chunk of envs
+    that fits by that plan (scratch memory grows in proportion to the envs stepped at once):
+    (compiled program, chunk or None)."""
+    budget = MEMORY_SHARE * os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    whole = _steps_program(model, batched, steps, None)
+    need = whole.memory_analysis().temp_size_in_bytes
+    batch = jax.tree.leaves(batched)[0].shape[0]
+    if need <= budget:
+        return whole, None
+    chunk = 1 << int(np.floor(np.log2(max(1.0, batch * budget / need))))
+    return _steps_program(model, batched, steps, chunk), chunk
+
+
 def _throughput(row: SceneResult, path: pathlib.Path, mj: mujoco.MjModel, args) -> None:
     """Control steps/s at ``args.batch``: fastrl float32 (vmapped scan) and mujoco.rollout, 2 threads."""
     batch, steps = args.batch, args.throughput_steps
@@ -398,14 +436,7 @@ def _throughput(row: SceneResult, path: pathlib.Path, mj: mujoco.MjModel, args) 
         model = physics.load_mjcf(str(path), linesearch=args.linesearch, **MODEL_OPTIONS)
         d0 = physics.make_data(model, qpos=d_mj.qpos.copy(), qvel=d_mj.qvel.copy(), ctrl=d_mj.ctrl.copy())
         batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), d0)
-
-        @jax.jit
-        def run(d):
-            def body(d, _):
-                return jax.vmap(lambda di: physics.step(model, di))(d), None
-
-            return jax.lax.scan(body, d, None, length=steps)[0]
-
+        run, row.vmap_chunk = _fitting_program(model, batched, steps)
         jax.block_until_ready(run(batched))
         t0 = time.perf_counter()
         jax.block_until_ready(run(batched))
@@ -573,10 +604,11 @@ def _scene_row(r: SceneResult, variants: list[str]) -> str:
         rnd += f"; MuJoCo C too, from step {r.random_mujoco_unstable}"
     root_mm = None if r.root_err_f32 is None else 1e3 * r.root_err_f32
     floor_mm = None if r.root_floor_f32 is None else 1e3 * r.root_floor_f32
+    chunked = f" (chunks of {r.vmap_chunk})" if r.vmap_chunk else ""
     return (
         f"| `{r.name}` | {r.nq} | {r.nv} | {r.nu} | {r.ngeom} | {r.integrator} | {r.status} | {r.start} "
         f"| {r.steps or ''} | {errs} | {_fmt(root_mm, '.2g')} | {_fmt(floor_mm, '.2g')} "
-        f"| {rnd} | {_fmt(r.fastrl_sps, ',.0f')} "
+        f"| {rnd} | {_fmt(r.fastrl_sps, ',.0f')}{chunked} "
         f"| {_fmt(r.mujoco_sps, ',.0f')} | {'; '.join(r.features) or r.error} |"
     )
 
@@ -594,7 +626,9 @@ def _scenes(rows: list[SceneResult], meta: dict) -> list[str]:
         "rounded to float32 before each step, largest distance from the unrounded run's (mm). "
         "`random`: finite after the random-control steps (float32). "
         f"Steps/s (`--throughput` only): control steps per second at batch {meta['batch']}, fastrl "
-        "float32 beside `mujoco.rollout` with 2 threads.",
+        "float32 beside `mujoco.rollout` with 2 threads; where one vmap of the whole batch would "
+        f"need more than {MEMORY_SHARE:.0%} of the machine's memory, the batch steps in chunks of "
+        "envs one after another, in one program.",
         "",
         f"| scene | nq | nv | nu | ngeom | integrator | status | start | steps | {head} | root f32 "
         "| f32 state | random | fastrl steps/s | MuJoCo steps/s | missing features |",
@@ -745,7 +779,10 @@ def merge(base: pathlib.Path, parts: list[pathlib.Path]) -> None:
             earlier = rows.get(r["name"])
             if run["meta"].get("throughput_only") and earlier:
                 earlier.update(fastrl_sps=r["fastrl_sps"], mujoco_sps=r["mujoco_sps"])
-                earlier["error"] = earlier["error"] or r["error"]
+                earlier["vmap_chunk"] = r.get("vmap_chunk")
+                # tracking steps one env, so an earlier out-of-memory error was an earlier timing's
+                timed = r["fastrl_sps"] is not None and "RESOURCE_EXHAUSTED" in earlier["error"]
+                earlier["error"] = r["error"] or ("" if timed else earlier["error"])
             else:  # a run that did not time the scene keeps the speeds an earlier run measured
                 untimed = earlier and r["fastrl_sps"] is None and r["mujoco_sps"] is None
                 rows[r["name"]] = {**r, **({k: earlier[k] for k in SPEEDS} if untimed else {})}

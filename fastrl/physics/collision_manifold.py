@@ -254,12 +254,15 @@ def _contacts(face, nface, poly, npoly, normal, direction, edge_subject):
     poly, n = _clip(face, nface, poly, npoly, normal)
     # more than four: the quadrilateral; an edge: its two farthest points; else all of them
     corners = quad(poly, n)
-    diff = poly[:, None, :] - poly[None, :, :]
+    # the farthest pair is only used for 2 < n <= 4 points, so only the first four are compared
+    # (comparing all would hold a width x width table per pair, 30 GB for a batch of 1024 Alohas)
+    head = poly[:4]
+    diff = head[:, None, :] - head[None, :, :]
     d2 = jnp.sum(diff * diff, -1)
-    k = jnp.arange(poly.shape[0])
+    k = jnp.arange(4)
     pairs = (k[:, None] < k[None, :]) & (k[None, :] < n)
     flat = jnp.argmax(jnp.where(pairs, d2, -1.0).reshape(-1))
-    far = jnp.array([flat // poly.shape[0], flat % poly.shape[0], 0, 0])
+    far = jnp.array([flat // 4, flat % 4, 0, 0])
     far = jnp.where(jnp.max(jnp.where(pairs, d2, -1.0)) > 0, far, jnp.array([0, 1, 0, 0]))
     pick = jnp.where(n > 4, corners, jnp.where(edge_subject & (n > 2), far, jnp.arange(4)))
     count = jnp.where(n > 4, 4, jnp.where(edge_subject & (n > 2), 2, jnp.minimum(n, 4)))
