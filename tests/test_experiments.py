@@ -3,7 +3,8 @@
 The four whose tiny mode takes over half a minute on two cores (each compiles several learners
 or a two-device split) are ``slow`` (``pytest -m slow tests/test_experiments.py``); what they
 exercise underneath (the vector env, two devices, divergence detection, the solver settings) has
-its own quick tests in ``tests/envs`` and ``tests/train``. The shared results module and the
+its own quick tests in ``tests/envs`` and ``tests/train``. So is the height-field contact check
+(about 30 s), to keep CI within its time. The shared results module and the
 scripts' shape (short functions, each runnable as ``python -m experiments.<name>``) are checked
 first, in a second (no script runs)."""
 
@@ -291,6 +292,20 @@ def test_float32_floor_quick(tmp_path):
     (row,) = result["scenes"].values()
     assert row["steps"] == 12 and 0 <= row["once_mm"] < 1 and row["per_step_mm"] >= 0  # 0.05 s of 4 ms steps
     assert (tmp_path / "float32_floor_quick.md").read_text().startswith("# The float32 floor")
+
+
+@pytest.mark.slow  # ~30 s of compile and MuJoCo C's converged collisions; CI is near its 30 minutes
+def test_hfield_contacts_quick(tmp_path):
+    """Where G1's rough-terrain contacts first part from MuJoCo C's, fastrl's depths are the
+    ones MuJoCo C's own convex collision finds for the same prisms given as meshes."""
+    result = _run_quick("hfield_contacts", tmp_path, "hfield_contacts_quick.json")
+    (row,) = result["rows"].values()
+    assert row["step"] is not None and row["geoms"]
+    for g in row["geoms"]:
+        assert len(g["fastrl"]) == len(g["as_meshes"]) > 0
+        pairs = zip(sorted(g["fastrl"]), sorted(g["as_meshes"]), strict=True)
+        assert max(abs(a - b) for a, b in pairs) < 1e-5
+    assert (tmp_path / "hfield_contacts_quick.md").read_text().startswith("# Height-field contacts")
 
 
 def test_first_minute_quick(tmp_path):
