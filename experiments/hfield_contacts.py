@@ -215,7 +215,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="*", default=list(SCENES))
     parser.add_argument("--max-steps", type=int, default=500)
-    parser.add_argument("--quick", action="store_true", help="the last scene only (G1: its contacts part at step 6), for CI")
+    parser.add_argument(
+        "--quick", action="store_true", help="the last scene only (G1: its contacts part at step 6), for CI"
+    )
     parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     args = parser.parse_args()
     names = args.scenes[-1:] if args.quick else args.scenes
