@@ -29,7 +29,6 @@ import numpy as np
 
 import fastrl
 from experiments import results
-from experiments import robot_coverage as coverage
 from fastrl import envs
 
 COMMANDS = ((0.0, 0.0, 0.0), (0.5, 0.0, 0.0), (1.0, 0.0, 0.0), (-0.5, 0.0, 0.0), (0.0, 0.5, 0.0),
@@ -173,7 +172,7 @@ def main() -> None:
         args.envs, args.runs, args.seconds = 4, 1, 1.5
     rows = measure(args.run_dir, commands, args.envs, args.runs, args.seconds)
     meta = {"date": results.today(), "machine": results.machine(), "command": results.command(),
-            "fastrl": coverage._fastrl_version(), "run_dir": args.run_dir, "envs": args.envs,
+            "fastrl": results.fastrl_version(), "run_dir": args.run_dir, "envs": args.envs,
             "runs": args.runs, "seconds": args.seconds}  # fmt: skip
     stem = "go1_commands_quick" if args.quick else "go1_commands"
     results.save(args.out, stem, {"meta": meta, "rows": rows}, markdown(rows, meta))

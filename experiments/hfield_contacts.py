@@ -226,7 +226,7 @@ def main() -> None:
     meta = {
         "date": results.today(),
         "machine": results.machine(),
-        "fastrl": coverage._fastrl_version(),
+        "fastrl": results.fastrl_version(),
         "mujoco": mujoco.__version__,
         "command": results.command(),
         "max_steps": args.max_steps,

@@ -13,10 +13,13 @@ import json
 import os
 import platform
 import shlex
+import subprocess
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
+
+import fastrl
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -128,3 +131,17 @@ def load(stem_or_path: Path | str, out: Path | str = RESULTS) -> Any:
     if path.suffix != ".json":
         path = Path(out) / f"{stem_or_path}.json"
     return json.loads(path.read_text())
+
+
+def fastrl_version() -> str:
+    """The git commit of the imported fastrl, marked dirty if its files differ from it."""
+    where = Path(fastrl.__file__).resolve().parent
+    git = ["git", "-C", str(where)]
+    try:
+        head = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+        dirty = subprocess.run([*git, "status", "--porcelain", "--", "."], capture_output=True, text=True)
+    except OSError:
+        return str(where)
+    if head.returncode:
+        return f"from {where} (not a git checkout)"
+    return head.stdout.strip() + (" with uncommitted changes in fastrl/" if dirty.stdout.strip() else "")

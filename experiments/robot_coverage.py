@@ -54,7 +54,6 @@ import json
 import os
 import pathlib
 import re
-import subprocess
 import time
 
 import jax
@@ -675,20 +674,6 @@ def markdown(rows: list[SceneResult], summary: dict, meta: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def _fastrl_version() -> str:
-    """The git commit of the imported fastrl, marked dirty if its files differ from it."""
-    where = pathlib.Path(fastrl.__file__).resolve().parent
-    git = ["git", "-C", str(where)]
-    try:
-        head = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-        dirty = subprocess.run([*git, "status", "--porcelain", "--", "."], capture_output=True, text=True)
-    except OSError:
-        return str(where)
-    if head.returncode:
-        return f"from {where} (not a git checkout)"
-    return head.stdout.strip() + (" with uncommitted changes in fastrl/" if dirty.stdout.strip() else "")
-
-
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -782,7 +767,7 @@ def main() -> None:
         paths = {
             n: p for n, p in paths.items() if any(n == k[:-1] if k.endswith("$") else k in n for k in keep)
         }
-    version = _fastrl_version()  # the code this run imports, before anything can change it
+    version = results.fastrl_version()  # the code this run imports, before anything can change it
     rows = run_scenes(paths, args)
     meta = _meta(args, version)
     stem = "robot_coverage_quick" if args.quick else "robot_coverage"
