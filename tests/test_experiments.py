@@ -16,6 +16,7 @@ import pathlib
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
@@ -291,7 +292,30 @@ def test_float32_floor_quick(tmp_path):
     result = _run_quick("float32_floor", tmp_path, "float32_floor_quick.json")
     (row,) = result["scenes"].values()
     assert row["steps"] == 12 and 0 <= row["once_mm"] < 1 and row["per_step_mm"] >= 0  # 0.05 s of 4 ms steps
+    assert 0 <= row["mixed_mm"] < 1
     assert (tmp_path / "float32_floor_quick.md").read_text().startswith("# The float32 floor")
+
+
+def test_float32_floor_mixed_step_is_mj_step_on_a_float32_state():
+    """Where the state is already float32, the mixed-precision step rounds nothing, so it must be
+    MuJoCo C's own step to the bit (Euler and implicitfast)."""
+    import mujoco
+
+    from experiments import float32_floor
+
+    xml = """<mujoco><option integrator="{}"/><worldbody><geom type="plane" size="1 1 .1"/>
+      <body pos="0 0 .5"><freejoint/><geom type="box" size=".1 .2 .05"/>
+      <body pos=".2 0 0"><joint type="hinge" damping=".3"/><geom type="capsule" size=".03 .1"/></body>
+      </body></worldbody></mujoco>"""
+    for integrator in ("Euler", "implicitfast"):
+        mj = mujoco.MjModel.from_xml_string(xml.format(integrator))
+        a, b = mujoco.MjData(mj), mujoco.MjData(mj)
+        for d in (a, b):
+            d.qvel[:] = np.float32([0.5, -0.25, 1.0, 2.0, -1.5, 0.75, 3.0])
+        mujoco.mj_step(mj, a)
+        float32_floor._mixed_step(mj, b)
+        np.testing.assert_array_equal(a.qpos, b.qpos)
+        np.testing.assert_array_equal(a.qvel, b.qvel)
 
 
 @pytest.mark.slow  # ~30 s of compile and MuJoCo C's converged collisions; CI is near its 30 minutes
