@@ -72,31 +72,36 @@ def enable(path: str | os.PathLike | None = None) -> Path | None:
 
 
 class _Counts:
-    """Persistent-cache hits and misses, counted from JAX's monitoring events."""
+    """Persistent-cache hits and misses per thread, counted from JAX's monitoring events (JAX
+    reports them on the thread that compiles, so a compile on a worker thread is told apart
+    from those the main thread runs meanwhile)."""
 
     def __init__(self):
-        self.hits = self.misses = 0
+        self.by_thread: dict[int, list[int]] = {}
         self._lock = threading.Lock()
 
     def __call__(self, event: str, **kwargs) -> None:
-        if event == "/jax/compilation_cache/cache_hits":
+        which = {"/jax/compilation_cache/cache_hits": 0, "/jax/compilation_cache/cache_misses": 1}.get(event)
+        if which is not None:
             with self._lock:
-                self.hits += 1
-        elif event == "/jax/compilation_cache/cache_misses":
-            with self._lock:
-                self.misses += 1
+                self.by_thread.setdefault(threading.get_ident(), [0, 0])[which] += 1
+
+    def of_this_thread(self) -> tuple[int, int]:
+        with self._lock:
+            hits, misses = self.by_thread.get(threading.get_ident(), (0, 0))
+        return hits, misses
 
 
 _COUNTS: _Counts | None = None
 
 
 def counts() -> tuple[int, int]:
-    """(hits, misses) of the persistent cache in this process since the first call."""
+    """(hits, misses) of the persistent cache on the calling thread since the first call."""
     global _COUNTS
     if _COUNTS is None:
         _COUNTS = _Counts()
         jax.monitoring.register_event_listener(_COUNTS)
-    return _COUNTS.hits, _COUNTS.misses
+    return _COUNTS.of_this_thread()
 
 
 def describe(before: tuple[int, int], enabled: bool) -> str:

@@ -110,10 +110,11 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
            record: dict[str, str]) -> dict[str, Any]:  # fmt: skip
     """The loop: one compiled chunk, then the host's pieces, until the budget or a stop."""
     setup = _setup(cfg)
+    compiling = _compile_chunk(setup)  # XLA compiles it on a worker thread while the state is made
     state, progress = _start(setup, ckpt, run_dir, resume, resume_step)
     _claim_folder(run_dir, setup.config, record)  # only now does anything get written into it
     state = _place(setup, state)
-    program = _compile_chunk(setup, state)
+    program = compiling.result()
     evaluation, pages, sizer = _Evaluation(setup), _ViewerPages(setup, run_dir), _ChunkSizer(setup)
     _announce_start(setup, program, run_dir)
     outs = _open_outputs(setup, run_dir, progress.chunk, setup.agents.env_steps(state))
@@ -210,6 +211,7 @@ class _Setup:
     total_updates: int
     mesh: Mesh | None
     shardings: Any  # per-leaf NamedSharding of the state, or None on one device
+    abstract: Any  # the state's shapes, dtypes and layout (ShapeDtypeStructs), known before it exists
 
     @property
     def total_steps(self) -> int:
@@ -235,13 +237,14 @@ def _setup(cfg: RunConfig) -> _Setup:
         total_updates = math.ceil(total_updates / k) * k
     mesh = devices.mesh()
     learner, init_key = scale.run_learner(cfg, specs, env, total_updates, mesh)
-    shardings = None
+    shardings, abstract = None, jax.eval_shape(learner.init, init_key)
     if mesh is not None:
-        abstract = jax.eval_shape(learner.init, init_key)
         shardings = scale.state_shardings(abstract, mesh, len(specs), learner.num_envs)
+        laid_out = lambda a, s: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=s)  # noqa: E731
+        abstract = jax.tree.map(laid_out, abstract, shardings)
     return _Setup(cfg=cfg, config=cfg.to_dict(), env=env, agents=_Agents(specs), learner=learner,
                   init_key=init_key, steps_per_update=steps_per_update, total_updates=total_updates,
-                  mesh=mesh, shardings=shardings)  # fmt: skip
+                  mesh=mesh, shardings=shardings, abstract=abstract)  # fmt: skip
 
 
 @dataclasses.dataclass
@@ -358,9 +361,10 @@ def _claim_folder(run_dir: Path, config: dict, record: dict[str, str]) -> None:
 
 
 def _place(setup: _Setup, state):
-    """The state in fresh buffers (donation fails when two leaves share one), laid out for the mesh."""
-    state = jax.tree.map(lambda x: jnp.array(x, copy=True), state)
-    return state if setup.shardings is None else jax.device_put(state, setup.shardings)
+    """The state in fresh buffers (donation fails when two leaves share one), laid out for the mesh:
+    one program that copies every leaf (copied leaf by leaf, each shape compiled its own copy)."""
+    fresh = lambda s: jax.tree.map(lambda x: jnp.array(x, copy=True), s)  # noqa: E731
+    return jax.jit(fresh, out_shardings=setup.shardings)(state)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -372,12 +376,41 @@ class _Program:
     note: str
 
 
-def _compile_chunk(setup: _Setup, state) -> _Program:
+class _Compiling:
+    """A program's XLA compile on a worker thread; ``result()`` waits for it (and re-raises).
+
+    XLA releases the GIL while it compiles, so the main thread meanwhile builds the initial state
+    (tracing, compiling and running the learner's ``init``). The thread is a daemon: a run that
+    fails before it needs the program exits without waiting for the compile.
+    """
+
+    def __init__(self, compile_fn: Callable[[], _Program]):
+        self._out: list = []
+        self._thread = threading.Thread(target=self._run, args=(compile_fn,), name="fastrl-compile")
+        self._thread.daemon = True
+        self._thread.start()
+
+    def _run(self, compile_fn: Callable[[], _Program]) -> None:
+        try:
+            self._out.append(compile_fn())
+        except BaseException as e:  # handed to the main thread by result()
+            self._out.append(e)
+
+    def result(self) -> _Program:
+        self._thread.join()
+        (out,) = self._out
+        if isinstance(out, BaseException):
+            raise out
+        return out
+
+
+def _compile_chunk(setup: _Setup) -> _Compiling:
     """``n`` updates in a loop (``n`` a traced argument: every chunk size runs the same program),
-    their metrics summed; jitted once with the state donated. With the compilation cache on, an
-    identical launch reads the traced program from it (``compile_cache.exported``) instead of
+    their metrics summed; jitted once with the state donated. Traced here from the state's shapes
+    and layout (``setup.abstract``) and compiled on a worker thread. With the compilation cache on,
+    an identical launch reads the traced program from it (``compile_cache.exported``) instead of
     tracing, and its compiled form from JAX's cache."""
-    shardings, t0, cache_before = setup.shardings, time.perf_counter(), compile_cache.counts()
+    shardings, t0, state = setup.shardings, time.perf_counter(), setup.abstract
 
     def chunk_fn():
         # jit's trace cache: eval_shape traces the update once, the loop body reuses that trace
@@ -400,11 +433,18 @@ def _compile_chunk(setup: _Setup, state) -> _Program:
 
         return run_chunk
 
+    def compiled(lowered, traced_note: str, wrap=lambda run: run) -> _Compiling:
+        def compile_fn() -> _Program:
+            cache_before = compile_cache.counts()  # this thread's: the compile's own cache use
+            run = lowered.compile()
+            return _Program(wrap(run), *_compiled(t0, traced_note, cache_before))
+
+        return _Compiling(compile_fn)
+
     count = jax.ShapeDtypeStruct((), jnp.int32)
     if not compile_cache.is_enabled() or jax.process_count() > 1:
         lowered = jax.jit(chunk_fn(), donate_argnums=0).lower(state, count)
-        traced_note = f"{time.perf_counter() - t0:.1f}s tracing"
-        return _Program(lowered.compile(), *_compiled(t0, traced_note, cache_before))
+        return compiled(lowered, f"{time.perf_counter() - t0:.1f}s tracing")
     # With the cache: the chunk as a function of the state's leaves, exported (jax.export keeps
     # builtin containers only), read back by an identical launch without tracing
     leaves, treedef = jax.tree.flatten(state)
@@ -421,13 +461,16 @@ def _compile_chunk(setup: _Setup, state) -> _Program:
     key = compile_cache.program_key((setup.config, getattr(setup.env, "model", None)), state)
     exported, read = compile_cache.exported(key, export)
     traced_note = "traced program read from the cache" if read else f"{time.perf_counter() - t0:.1f}s tracing"
-    compiled = jax.jit(exported.call, donate_argnums=0).lower(leaves, count).compile()
+    lowered = jax.jit(exported.call, donate_argnums=0).lower(leaves, count)
 
-    def run(s, n):
-        out, sums = compiled(jax.tree.leaves(s), n)
-        return jax.tree.unflatten(treedef, out), sums
+    def wrap(program):
+        def run(s, n):
+            out, sums = program(jax.tree.leaves(s), n)
+            return jax.tree.unflatten(treedef, out), sums
 
-    return _Program(run, *_compiled(t0, traced_note, cache_before))
+        return run
+
+    return compiled(lowered, traced_note, wrap)
 
 
 def _compiled(t0: float, traced_note: str, cache_before) -> tuple[float, str]:
