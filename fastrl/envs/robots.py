@@ -160,6 +160,16 @@ class Go1Joystick(Env):
         )
         return self.observation_noise * scale * jax.random.uniform(key, (33,), dtype, -1.0, 1.0)
 
+    @property
+    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """[-1, 1] per joint: an action is an offset from the standing pose in units of
+        ``action_scale``, not a servo target, so the actuators' ctrlrange does not bound it (a
+        learner mapping its squashed output onto the ctrlrange would centre each joint's target
+        half-way across its range, far from standing). The physics clamps the resulting target
+        to the ctrlrange, as in Playground."""
+        one = np.ones(self.action_size, np.float32)
+        return -one, one.copy()
+
     def _control(self, action, task):
         return self._stand + self.action_scale * action
 

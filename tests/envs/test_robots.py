@@ -57,6 +57,23 @@ def test_go1_joystick_api_and_rewards(go1):
     assert mark.shape == (8, 1, 3) and (mark[:, 0, 2] > np.asarray(last.data.qpos)[:, 2]).all()
 
 
+def test_go1_joystick_actions_are_offsets_from_standing_in_unit_bounds(go1):
+    """A learner squashes its actions into ``action_bounds``: they must be [-1, 1] (offsets of
+    ``action_scale`` from the standing pose), so that its untrained, zero-mean policy targets the
+    standing pose, not the middle of each joint's range (the ctrlrange)."""
+    from fastrl.agents.networks import TanhGaussian
+
+    env = go1[0]
+    low, high = env.action_bounds
+    np.testing.assert_array_equal(low, -1.0)
+    np.testing.assert_array_equal(high, 1.0)
+    dist = TanhGaussian(jnp.asarray(low), jnp.asarray(high))
+    neutral = dist.postprocess(dist.mode_raw(jnp.zeros(2 * env.action_size)))
+    np.testing.assert_allclose(env._control(neutral, None), env._stand, atol=1e-6)
+    extreme = env._control(jnp.ones(env.action_size), None) - env._stand
+    np.testing.assert_allclose(extreme, env.action_scale, rtol=1e-6)
+
+
 def test_go1_joystick_auto_resets_to_fresh_commands_and_is_deterministic(go1):
     env, reset, step = go1
     zeros = jnp.zeros((30, 4, 12))
