@@ -126,6 +126,20 @@ def measure(run_dir: str, commands, n: int, runs: int, seconds: float) -> list[d
     return rows
 
 
+def trained(run_dir: str) -> dict:
+    """What the measured policy is: its checkpoint's env steps and the run's PPO settings."""
+    from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer
+
+    ckpt = Checkpointer(pathlib.Path(run_dir) / CHECKPOINT_DIR)
+    try:
+        _, meta = ckpt.read_meta(ckpt.latest_step())
+    finally:
+        ckpt.close()
+    algo = meta["config"]["algo"]
+    keep = ("num_envs", "unroll_length", "num_minibatches", "init_std", "entropy_cost", "entropy_estimate")
+    return {"env_steps": int(meta["env_steps"]), "algo": {k: algo.get(k) for k in keep}}
+
+
 def markdown(rows: list[dict], meta: dict) -> str:
     vec = lambda v: " / ".join(f"{x:+.2f}" for x in v)  # noqa: E731
     ours = np.mean([r["fastrl_score"] for r in rows])
@@ -136,6 +150,10 @@ def markdown(rows: list[dict], meta: dict) -> str:
             "",
             f"{meta['date']}, {meta['machine']}; fastrl {meta['fastrl']}; run `{meta['run_dir']}`. "
             f"Command: `{meta['command']}`.",
+            "",
+            f"Policy: the run's newest checkpoint, {meta['trained']['env_steps']:,} env steps of PPO ("
+            + ", ".join(f"{k} {v}" for k, v in meta["trained"]["algo"].items())
+            + ").",
             "",
             f"- **Tracking score (of 1.5) averaged over the commands: fastrl {ours:.2f}, MuJoCo C "
             f"{theirs:.2f} ({theirs / ours:.0%} of fastrl's).** Each command held {meta['seconds']:g} s "
@@ -173,7 +191,7 @@ def main() -> None:
     rows = measure(args.run_dir, commands, args.envs, args.runs, args.seconds)
     meta = {"date": results.today(), "machine": results.machine(), "command": results.command(),
             "fastrl": results.fastrl_version(), "run_dir": args.run_dir, "envs": args.envs,
-            "runs": args.runs, "seconds": args.seconds}  # fmt: skip
+            "runs": args.runs, "seconds": args.seconds, "trained": trained(args.run_dir)}  # fmt: skip
     stem = "go1_commands_quick" if args.quick else "go1_commands"
     results.save(args.out, stem, {"meta": meta, "rows": rows}, markdown(rows, meta))
     print(markdown(rows, meta))
