@@ -79,3 +79,22 @@ def test_quick_run(tmp_path):
     assert page.startswith("# Robot scene coverage")
     assert all(f["feature"] in page for f in summary["features_ranked"])
     assert mujoco.__version__ in page
+
+
+def test_render_lists_each_float32_miss_beside_its_floor(tmp_path):
+    """``--render`` rewrites the page from the saved record; every scene whose float32 root is off
+    by more than 1 cm is listed with what float32 rounding alone does to MuJoCo C's run there."""
+    from experiments import results
+
+    record = results.load("robot_coverage")
+    (tmp_path / "robot_coverage.json").write_text(json.dumps(record))
+    cmd = [sys.executable, "-m", "experiments.robot_coverage", "--render", "--out", str(tmp_path)]
+    subprocess.run(cmd, check=True, cwd=ROOT, timeout=300)
+    page = (tmp_path / "robot_coverage.md").read_text()
+    off = [r["name"] for r in record["rows"] if (r["root_err_f32"] or 0) > robot_coverage.ROOT_TOL]
+    assert off and f"- Float32 root more than 1 cm from MuJoCo C's ({len(off)}):" in page
+    floor = results.load("float32_floor")["scenes"]
+    for name in off:
+        line = next(x for x in page.splitlines() if x.startswith(f"  - `{name}`: ") and " mm; " in x)
+        assert f"{floor[name]['mixed_mm']:.2g} mm" in line
+    assert json.loads((tmp_path / "robot_coverage.json").read_text())["rows"] == record["rows"]
