@@ -80,8 +80,10 @@ class _Counts:
         self.by_thread: dict[int, list[int]] = {}
         self._lock = threading.Lock()
 
+    _INDEX = {"/jax/compilation_cache/cache_hits": 0, "/jax/compilation_cache/cache_misses": 1}
+
     def __call__(self, event: str, **kwargs) -> None:
-        which = {"/jax/compilation_cache/cache_hits": 0, "/jax/compilation_cache/cache_misses": 1}.get(event)
+        which = self._INDEX.get(event)
         if which is not None:
             with self._lock:
                 self.by_thread.setdefault(threading.get_ident(), [0, 0])[which] += 1

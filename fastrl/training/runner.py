@@ -361,8 +361,8 @@ def _claim_folder(run_dir: Path, config: dict, record: dict[str, str]) -> None:
 
 
 def _place(setup: _Setup, state):
-    """The state in fresh buffers (donation fails when two leaves share one), laid out for the mesh:
-    one program that copies every leaf (copied leaf by leaf, each shape compiled its own copy)."""
+    """The state in fresh buffers (donation fails when two leaves share one), laid out for the mesh,
+    by one jitted copy of the whole tree (a copy per leaf would compile a program per shape)."""
     fresh = lambda s: jax.tree.map(lambda x: jnp.array(x, copy=True), s)  # noqa: E731
     return jax.jit(fresh, out_shardings=setup.shardings)(state)
 
@@ -377,22 +377,27 @@ class _Program:
 
 
 class _Compiling:
-    """A program's XLA compile on a worker thread; ``result()`` waits for it (and re-raises).
+    """The chunk's XLA compile on a worker thread; ``result()`` waits for it (and re-raises).
 
     XLA releases the GIL while it compiles, so the main thread meanwhile builds the initial state
     (tracing, compiling and running the learner's ``init``). The thread is a daemon: a run that
-    fails before it needs the program exits without waiting for the compile.
+    fails before it needs the program exits without waiting for the compile. ``wrap`` adapts the
+    compiled callable to ``run(state, n)``; ``t0`` is when tracing began (the reported compile
+    time includes it).
     """
 
-    def __init__(self, compile_fn: Callable[[], _Program]):
+    def __init__(self, lowered, t0: float, traced_note: str, wrap: Callable = lambda run: run):
         self._out: list = []
-        self._thread = threading.Thread(target=self._run, args=(compile_fn,), name="fastrl-compile")
-        self._thread.daemon = True
+        args = (lowered, t0, traced_note, wrap)
+        self._thread = threading.Thread(target=self._run, args=args, name="fastrl-compile", daemon=True)
         self._thread.start()
 
-    def _run(self, compile_fn: Callable[[], _Program]) -> None:
+    def _run(self, lowered, t0: float, traced_note: str, wrap: Callable) -> None:
         try:
-            self._out.append(compile_fn())
+            before = compile_cache.counts()  # this thread's: the compile's own cache use
+            run = wrap(lowered.compile())
+            cache_note = compile_cache.describe(before, compile_cache.is_enabled())
+            self._out.append(_Program(run, time.perf_counter() - t0, f"{traced_note}, {cache_note}"))
         except BaseException as e:  # handed to the main thread by result()
             self._out.append(e)
 
@@ -433,18 +438,10 @@ def _compile_chunk(setup: _Setup) -> _Compiling:
 
         return run_chunk
 
-    def compiled(lowered, traced_note: str, wrap=lambda run: run) -> _Compiling:
-        def compile_fn() -> _Program:
-            cache_before = compile_cache.counts()  # this thread's: the compile's own cache use
-            run = lowered.compile()
-            return _Program(wrap(run), *_compiled(t0, traced_note, cache_before))
-
-        return _Compiling(compile_fn)
-
     count = jax.ShapeDtypeStruct((), jnp.int32)
     if not compile_cache.is_enabled() or jax.process_count() > 1:
         lowered = jax.jit(chunk_fn(), donate_argnums=0).lower(state, count)
-        return compiled(lowered, f"{time.perf_counter() - t0:.1f}s tracing")
+        return _Compiling(lowered, t0, f"{time.perf_counter() - t0:.1f}s tracing")
     # With the cache: the chunk as a function of the state's leaves, exported (jax.export keeps
     # builtin containers only), read back by an identical launch without tracing
     leaves, treedef = jax.tree.flatten(state)
@@ -470,13 +467,7 @@ def _compile_chunk(setup: _Setup) -> _Compiling:
 
         return run
 
-    return compiled(lowered, traced_note, wrap)
-
-
-def _compiled(t0: float, traced_note: str, cache_before) -> tuple[float, str]:
-    """Seconds since ``t0`` and the first line's note on how the chunk was traced and compiled."""
-    cache_note = compile_cache.describe(cache_before, compile_cache.is_enabled())
-    return time.perf_counter() - t0, f"{traced_note}, {cache_note}"
+    return _Compiling(lowered, t0, traced_note, wrap)
 
 
 def _announce_start(setup: _Setup, program: _Program, run_dir: Path) -> None:
