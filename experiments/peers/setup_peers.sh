@@ -1,10 +1,14 @@
 #!/usr/bin/env bash
-# Create (or update) the peer-simulator virtualenv at <repo>/.venv-peers.
+# Create (or update) the peer virtualenv at <repo>/.venv-peers.
 #
-#   bash experiments/peers/setup_peers.sh
+#   bash experiments/peers/setup_peers.sh        # everything
+#   bash experiments/peers/setup_peers.sh sb3    # Stable-Baselines3 only (what CI's quick test needs)
 #
-# Installs Brax 0.14.x (which pulls jax, mujoco, mujoco-mjx), EnvPool, Gymnasium and NumPy with
-# Python 3.11. Idempotent: re-running reuses the venv and only installs what is missing.
+# Installs Brax 0.14.x (which pulls jax, mujoco, mujoco-mjx), EnvPool, Gymnasium and NumPy, and
+# Stable-Baselines3 with PyTorch's CPU build, with Python 3.11. PyTorch comes from its own CPU
+# index where that is reachable, else torch==2.13.0 from pip's configured sources (PyPI's
+# default Linux wheel is the CUDA build, some 3 GB). Idempotent: re-running reuses the venv and
+# only installs what is missing.
 # EnvPool is optional: if no wheel installs for this Python/platform, the script says so and
 # carries on (experiments/peers/envpool_ant.py then cannot run).
 # JAX is deliberately NOT pinned; the peer scripts shim jax.device_put_replicated (removed from
@@ -30,6 +34,20 @@ fi
 PIP=("$VENV/bin/python" -m pip --disable-pip-version-check)
 "${PIP[@]}" install --quiet --upgrade pip
 
+echo "setup_peers: installing torch (CPU build), stable-baselines3, gymnasium[mujoco]"
+if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
+  if "$VENV/bin/python" -c "import socket; socket.getaddrinfo('download.pytorch.org', 443)" 2>/dev/null; then
+    "${PIP[@]}" install --quiet torch --index-url https://download.pytorch.org/whl/cpu
+  else
+    "${PIP[@]}" install --quiet "torch==2.13.0"
+  fi
+fi
+"${PIP[@]}" install --quiet "stable-baselines3>=2.4,<3" "gymnasium[mujoco]>=1.0"
+if [[ "${1:-all}" == "sb3" ]]; then
+  "$VENV/bin/python" -c "import importlib.metadata as md; print('  ' + ', '.join(f'{n}=={md.version(n)}' for n in ('torch', 'stable-baselines3', 'gymnasium', 'mujoco')))"
+  exit 0
+fi
+
 echo "setup_peers: installing brax 0.14.x, gymnasium, numpy"
 "${PIP[@]}" install --quiet "brax>=0.14,<0.15" gymnasium numpy
 
@@ -47,7 +65,8 @@ echo "setup_peers: installed versions:"
 import importlib.metadata as md
 import sys
 
-for name in ["brax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "envpool", "gymnasium", "numpy"]:
+for name in ["brax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "envpool", "gymnasium", "numpy", "torch",
+             "stable-baselines3"]:
     try:
         print(f"  {name}=={md.version(name)}")
     except md.PackageNotFoundError:

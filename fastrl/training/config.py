@@ -105,6 +105,10 @@ class TrainConfig:
                           None: the num_evals schedule)
       eval_envs           episodes per evaluation (one per env, deterministic policy)
       stop_after_chunks   stop this invocation after this many chunks (resume continues it)
+      max_seconds         stop this invocation once this many seconds have passed since it
+                          started, compile, evaluations and saves included: the chunk that
+                          reaches it is shortened to end there, then the run is saved (resume
+                          continues it). None: no time limit
       stop_at_return      stop the run once every agent's deterministic evaluation return has
                           reached this (status "reached"; None: train the whole budget)
       num_seeds           independent agents (seeds seed, seed+1, ...) trained in ONE program
@@ -119,6 +123,7 @@ class TrainConfig:
     eval_every: int | None = None
     eval_envs: int = 128
     stop_after_chunks: int | None = None
+    max_seconds: float | None = None
     stop_at_return: float | None = None
     num_seeds: int = 1
     vmap_sweep: dict | None = None
@@ -132,6 +137,8 @@ class TrainConfig:
             raise ConfigError(f"train.chunk_seconds={self.chunk_seconds} must be > 0")
         if self.eval_every is not None and self.eval_every < 0:
             raise ConfigError("train.eval_every must be >= 0 (or null: the train.num_evals schedule)")
+        if self.max_seconds is not None and not self.max_seconds > 0:
+            raise ConfigError(f"train.max_seconds={self.max_seconds} must be > 0 (or null: no time limit)")
         if self.num_seeds < 1:
             raise ConfigError(f"train.num_seeds={self.num_seeds} must be >= 1")
         only_at_end = self.eval_every == 0 or (self.eval_every is None and self.num_evals == 1)

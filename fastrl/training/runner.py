@@ -109,6 +109,7 @@ def train(
 def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_chunk, resume_step,
            record: dict[str, str]) -> dict[str, Any]:  # fmt: skip
     """The loop: one compiled chunk, then the host's pieces, until the budget or a stop."""
+    clock = _Clock(cfg.train.max_seconds)
     setup = _setup(cfg)
     compiling = _compile_chunk(setup)  # XLA compiles it on a worker thread while the state is made
     state, progress = _start(setup, ckpt, run_dir, resume, resume_step)
@@ -122,7 +123,7 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
     try:
         with _StopFlag() as stop:
             while not progress.done(setup):
-                n, t = sizer.next(progress), time.perf_counter()
+                n, t = sizer.next(progress, clock), time.perf_counter()
                 new_state, sums = program.run(state, np.int32(n))
                 rows = setup.agents.rows(sums, n)
                 if _diverged(setup.agents, progress, rows):
@@ -139,11 +140,11 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
                 if on_chunk is not None:
                     on_chunk(progress.chunk, row)
                 stop.set = devices.any_process(stop.set)  # Ctrl-C in one process stops them all
-                ending = _stop_reason(setup, progress, stop.set)
+                ending = _stop_reason(setup, progress, stop.set, clock)
                 _checkpoint(ckpt, setup, progress, state, ending is not None)
                 if ending:
                     status = ending
-                    _announce_end(setup, progress, ending, stop.set, run_dir)
+                    _announce_end(setup, progress, ending, stop.set, run_dir, clock)
                     break
     finally:
         for out in outs:
@@ -298,28 +299,45 @@ class _Progress:
         return self.updates >= setup.total_updates
 
     def meta(self, config: dict, env_steps: int) -> dict:
-        """The checkpoint's metadata: the config and this position."""
+        """The checkpoint's metadata: the config, this position and the time of saving
+        (``saved_at``, seconds since the Unix epoch)."""
         return {"config": config, "chunk": self.chunk, "updates": self.updates,
                 "env_steps": env_steps, "wall_s": self.wall, "eval_history": self.watch.history(),
-                "reached": self.reached}  # fmt: skip
+                "reached": self.reached, "saved_at": time.time()}  # fmt: skip
+
+
+class _Clock:
+    """This invocation's time limit (``train.max_seconds``), counted from its start."""
+
+    def __init__(self, limit: float | None):
+        self.limit, self.start = limit, time.perf_counter()
+
+    def left(self) -> float:
+        """Seconds left (infinite without a limit)."""
+        return math.inf if self.limit is None else self.limit - (time.perf_counter() - self.start)
+
+    def out(self) -> bool:
+        """Whether the limit is reached (process 0's clock decides for all processes)."""
+        return self.limit is not None and bool(devices.agreed(self.left() <= 0))
 
 
 class _ChunkSizer:
     """How many updates the next chunk runs: ``train.updates_per_chunk`` when fixed; else one
-    update first, then as many as the last chunk's speed fits in ``train.chunk_seconds``."""
+    update first, then as many as the last chunk's speed fits in ``train.chunk_seconds``. Under
+    a time limit a chunk is cut short to end at it, once the speed is known."""
 
     def __init__(self, setup: _Setup):
         self.fixed, self.seconds = setup.cfg.train.updates_per_chunk, setup.cfg.train.chunk_seconds
         self.total = setup.total_updates
         self.per_update: float | None = None
 
-    def next(self, progress: _Progress) -> int:
+    def next(self, progress: _Progress, clock: _Clock) -> int:
         if self.fixed is not None:
             n = self.fixed
+        elif self.per_update is None:
+            n = 1
         else:  # by time: process 0's measurement decides for all processes
-            n = devices.agreed(
-                1 if self.per_update is None else max(1, round(self.seconds / self.per_update))
-            )
+            n = devices.agreed(max(1, round(min(self.seconds, clock.left()) / self.per_update)))
         return min(n, self.total - progress.updates)
 
     def observe(self, n: int, seconds: float) -> None:
@@ -652,27 +670,34 @@ def _checkpoint(ckpt: Checkpointer, setup: _Setup, progress: _Progress, state, e
         progress.saved_wall = progress.wall
 
 
-def _stop_reason(setup: _Setup, progress: _Progress, interrupted: bool) -> str | None:
+def _stop_reason(setup: _Setup, progress: _Progress, interrupted: bool, clock: _Clock) -> str | None:
     """Why the run ends after this chunk, before its budget: "reached" (every agent's evaluation
-    return reached ``train.stop_at_return``), "stopped" (Ctrl-C, ``train.stop_after_chunks``),
-    or None to go on."""
+    return reached ``train.stop_at_return``), "stopped" (Ctrl-C, ``train.stop_after_chunks``,
+    ``train.max_seconds``), or None to go on."""
     train = setup.cfg.train
     if train.stop_at_return is not None and all(x is not None for x in progress.reached):
         return "reached"
     after = train.stop_after_chunks
-    if interrupted or (after is not None and progress.chunk - progress.start_chunk >= after):
+    if interrupted or (after is not None and progress.chunk - progress.start_chunk >= after) or clock.out():
         return "stopped"
     return None
 
 
-def _announce_end(setup: _Setup, progress: _Progress, ending: str, interrupted: bool, run_dir: Path) -> None:
+def _announce_end(setup: _Setup, progress: _Progress, ending: str, interrupted: bool, run_dir: Path,
+                  clock: _Clock) -> None:  # fmt: skip
     train = setup.cfg.train
     if ending == "reached":
         who = "every agent's" if setup.agents.batched else "the"
         print(f"[fastrl] {who} evaluation return reached train.stop_at_return={train.stop_at_return:g} by "
               f"chunk {progress.chunk} ({progress.wall:.0f}s of training); stopping", flush=True)  # fmt: skip
         return
-    why = "Ctrl-C" if interrupted else f"train.stop_after_chunks={train.stop_after_chunks}"
+    after = train.stop_after_chunks
+    if interrupted:
+        why = "Ctrl-C"
+    elif after is not None and progress.chunk - progress.start_chunk >= after:
+        why = f"train.stop_after_chunks={after}"
+    else:
+        why = f"train.max_seconds={train.max_seconds:g}"
     of = f"({progress.updates:,d} of {setup.total_updates:,d} updates)"
     if setup.fixed_chunks is not None:
         of = f"of {setup.fixed_chunks}"

@@ -133,6 +133,36 @@ def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path, capsys):
     del cfg
 
 
+def test_max_seconds_stops_the_run_on_time_with_a_checkpoint(tmp_path, capsys):
+    from fastrl.checkpoint import Checkpointer
+
+    long = [*QUICK, "train.total_env_steps=100_000_000", "train.updates_per_chunk=null"]
+    out = run(compose_cfg([*long, f"run_dir={tmp_path}", "train.max_seconds=0.001"]))
+    assert out["status"] == "stopped" and out["chunks"] == 1 and not out["interrupted"]
+    assert "stopped by train.max_seconds=0.001 after chunk 1 (1 of " in capsys.readouterr().out
+    ckpt = Checkpointer(tmp_path / "checkpoints")
+    try:
+        assert ckpt.steps() == [1] and ckpt.read_meta(1)[1]["saved_at"] > 0
+    finally:
+        ckpt.close()
+    with pytest.raises(ConfigError, match="train.max_seconds=0"):
+        typed([*QUICK, "train.max_seconds=0"])
+
+
+def test_a_time_limit_shortens_the_chunk_that_reaches_it():
+    from fastrl.training import runner
+
+    sizer = runner._ChunkSizer.__new__(runner._ChunkSizer)
+    sizer.fixed, sizer.seconds, sizer.total, sizer.per_update = None, 10.0, 1000, 0.5
+    progress = runner._Progress.fresh(1)
+    clock = runner._Clock(None)
+    assert sizer.next(progress, clock) == 20  # ~10 s of 0.5 s updates
+    clock = runner._Clock(3.2)
+    assert sizer.next(progress, clock) in (6, 7)  # what is left of 3.2 s, at 0.5 s an update
+    clock.start -= 10
+    assert clock.out() and sizer.next(progress, clock) == 1
+
+
 def test_corrupt_or_incompatible_checkpoint_gives_a_clear_error(tmp_path):
     run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}", "train.stop_after_chunks=1"]))
     # A different network cannot continue this run: the error names the keys.
