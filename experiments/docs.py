@@ -24,6 +24,7 @@ from pathlib import Path
 
 from experiments import results
 from experiments.results import load, number, table
+from experiments.sb3_compare import time_ratio
 
 PAGES = [results.ROOT / "README.md", *sorted((results.ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(r"(<!-- results: (\S+) -->\n)(.*?)(<!-- /results -->)", re.S)
@@ -217,6 +218,21 @@ def first_minute_block() -> str:
     return table(header, rows, align="llrrrr") + source("first_minute")
 
 
+def sb3_block() -> str:
+    record = load("sb3_compare")
+    names = {"fastrl_ppo": "fastrl PPO", "sb3_ppo": "SB3 PPO", "sb3_sac": "SB3 SAC"}
+    rows = []
+    for env, summary in record["summary"].items():
+        for learner, r in summary["learners"].items():
+            reach = "not reached" if r["seconds_to_target"] is None else f"{r['seconds_to_target']:.0f}"
+            last = f"{r['last_return']:.0f} ± {r['last_std']:.0f}"
+            rows.append([env, names[learner], r["env_steps"], last, round(r["best_return"]),
+                         round(summary["target"]), reach])  # fmt: skip
+    header = ["env (Gymnasium v5)", "learner", "env steps", f"return at {record['seconds']:g} s",
+              "best snapshot", "target", "s to the target"]  # fmt: skip
+    return table(header, rows, align="llrrrrr") + source("sb3_compare")
+
+
 def robot_speed(rows: list[dict]) -> tuple[int, float, float]:
     timed = [r for r in rows if r.get("fastrl_sps") and r.get("mujoco_sps")]
     ratios = [r["fastrl_sps"] / r["mujoco_sps"] for r in timed]
@@ -347,7 +363,12 @@ def _learning_rows() -> list[tuple[str, str, str, str]]:
     ttr = {t: time_to_return(t) for t in ("inverted_pendulum", "halfcheetah_sac", "hopper_sac", "ant")}
     ant_ref = next(r for r in load("reference_scores")["rows"] if r["run"].startswith("ant"))
     launch = load("first_minute")["results"]["ant"]
+    sb3 = load("sb3_compare")
+    times = {env: time_ratio(summary) for env, summary in sb3["summary"].items()}
     return [
+        (f"Time to the same return within {sb3['seconds']:g} s, PPO: " + " / ".join(times),
+         "SB3 PPO or SAC (PyTorch) on Gymnasium's envs",
+         " / ".join("–" if r is None else f"{r:.2f}x" for r in times.values()), "sb3_compare"),
         ("Time to return: PPO inverted_pendulum, SAC halfcheetah / hopper", "Brax's own trainers",
          f"{ttr['inverted_pendulum']['ratio']}, {ttr['halfcheetah_sac']['ratio']} / "
          f"{ttr['hopper_sac']['ratio']}", "time_to_return_inverted_pendulum"),
@@ -378,6 +399,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "vector": vector_block,
     "time_to_return": time_to_return_block,
     "first_minute": first_minute_block,
+    "sb3": sb3_block,
     "robots": robot_block,
     "speed_accuracy": speed_accuracy_block,
     "reference_scores": reference_block,

@@ -3,6 +3,7 @@
     python -m experiments.sb3_compare                                  # 4 envs x 3 learners x 300 s (~70 min)
     python -m experiments.sb3_compare --envs hopper --seconds 900
     python -m experiments.sb3_compare --quick --out DIR                # hopper, seconds per learner, for CI
+    python -m experiments.sb3_compare --from-json experiments/results/sb3_compare.json  # the page again
 
 What most users run on a CPU today is Stable-Baselines3 (PyTorch) on Gymnasium's own MuJoCo envs,
 one process stepping one env. Here each learner trains for the same wall-clock budget
@@ -21,9 +22,10 @@ runs ``--episodes`` episodes in Gymnasium's ``<Env>-v5`` (MuJoCo C, float64), th
 through ``fastrl.load_policy`` and ``fastrl.reference.evaluate`` (Gymnasium built with the fastrl
 env's settings, which for these four are Gymnasium's defaults: SB3 trains on the same env
 keywords). Reported per env and learner: env steps in the budget, the return of the last
-snapshot, the best snapshot's return, and the seconds each learner took to first reach the best
-return SB3 reached in the budget (the time to the same return). One seed per learner and env;
-the machine's 2 cores serve one learner at a time.
+snapshot, the best snapshot's return, and the time to the same return: the target is the lower
+of fastrl's last return and the better SB3 learner's, and a learner's time is its first
+snapshot from which every later snapshot scores at least the target (``summarize``). One seed
+per learner and env; the machine's 2 cores serve one learner at a time.
 
 Writes ``experiments/results/sb3_compare.{json,md,png}`` (``_quick`` with ``--quick``).
 """
@@ -134,23 +136,32 @@ def _json_lines(cmd: list[str], timeout: float) -> list[dict]:
 
 
 def summarize(env_runs: dict[str, list[dict]]) -> dict:
-    """Per learner: env steps, last and best returns; the time each took to reach the best
-    return SB3 reached (None where it never did)."""
+    """Per learner: env steps, last and best returns, and the time to the same return.
+
+    The target is the lower of fastrl's last return and the better SB3 learner's last return
+    (without fastrl: SB3's better last return), so both sides got there. A learner's time to it
+    is the first snapshot from which every later snapshot scores at least the target: a lucky
+    early snapshot that the learner then falls back from does not count. None: not reached."""
     means = {k: [float(np.mean(s["returns"])) for s in snaps] for k, snaps in env_runs.items()}
-    sb3 = [r for k, rs in means.items() if k.startswith("sb3") for r in rs]
-    target = max(sb3) if sb3 else None
+    sb3_last = max(rs[-1] for k, rs in means.items() if k.startswith("sb3"))
+    target = min(sb3_last, means["fastrl_ppo"][-1]) if "fastrl_ppo" in means else sb3_last
     rows = {}
     for learner, snaps in env_runs.items():
-        reach = (
-            None
-            if target is None
-            else next((s["seconds"] for s, m in zip(snaps, means[learner], strict=True) if m >= target), None)
-        )
-        last = snaps[-1]
-        rows[learner] = {"env_steps": last["env_steps"], "seconds": last["seconds"],
-                         "last_return": means[learner][-1], "last_std": float(np.std(last["returns"])),
-                         "best_return": max(means[learner]), "seconds_to_target": reach}  # fmt: skip
+        m, last = means[learner], snaps[-1]
+        stays = [i for i in range(len(m)) if all(x >= target for x in m[i:])]
+        rows[learner] = {"env_steps": last["env_steps"], "seconds": last["seconds"], "last_return": m[-1],
+                         "last_std": float(np.std(last["returns"])), "best_return": max(m),
+                         "seconds_to_target": snaps[stays[0]]["seconds"] if stays else None}  # fmt: skip
     return {"target": target, "learners": rows}
+
+
+def time_ratio(summary: dict) -> float | None:
+    """fastrl's time to the target over the faster SB3 learner's (None if either is missing)."""
+    rows = summary["learners"]
+    sb3 = [r["seconds_to_target"] for k, r in rows.items() if k.startswith("sb3")]
+    sb3 = [t for t in sb3 if t is not None]
+    mine = rows.get("fastrl_ppo", {}).get("seconds_to_target")
+    return mine / min(sb3) if mine and sb3 else None
 
 
 def render(result: dict) -> str:
@@ -161,20 +172,20 @@ def render(result: dict) -> str:
              "Each learner trains for the same wall-clock budget from launching its process (start-up "
              "and compile included), one at a time; every snapshot is then scored in Gymnasium's own "
              f"v5 env (MuJoCo C), {result['episodes']} episodes of the deterministic policy. One seed "
-             f"({result['seeds']}). Target: the best return an SB3 learner reached in the budget.", "",
-             "| env | learner | env steps | last return | best return | s to the target "
-             "| x faster than SB3's best |",
+             f"({result['seeds']}). Target: the lower of fastrl's last return and the better SB3 "
+             "learner's; a learner's time to it is its first snapshot from which every later one "
+             "scores at least the target.", "",
+             "| env | learner | env steps | last return | best return | s to the target | time ratio, "
+             "fastrl / faster SB3 |",
              "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
     for env, summary in result["summary"].items():
-        times = summary["learners"]
-        sb3_best = min((r["seconds_to_target"] for k, r in times.items() if k.startswith("sb3")
-                        and r["seconds_to_target"] is not None), default=None)  # fmt: skip
-        for learner, r in times.items():
-            reach = r["seconds_to_target"]
-            ratio = "–" if reach is None or sb3_best is None else f"{sb3_best / reach:.1f}x"
+        ratio = time_ratio(summary)
+        for learner, r in summary["learners"].items():
+            reach = "not reached" if r["seconds_to_target"] is None else f"{r['seconds_to_target']:.0f}"
+            shown = "–" if learner != "fastrl_ppo" or ratio is None else f"{ratio:.2f}x"
             lines.append(f"| {env} | {LABELS[learner]} | {results.number(r['env_steps'])} | "
                          f"{r['last_return']:.0f} ± {r['last_std']:.0f} | {r['best_return']:.0f} | "
-                         f"{'not reached' if reach is None else f'{reach:.0f}'} | {ratio} |")  # fmt: skip
+                         f"{reach} | {shown} |")  # fmt: skip
         lines.append(f"| {env} | target | | | {summary['target']:.0f} | | |")
     if result.get("note"):
         lines += ["", result["note"]]
@@ -228,9 +239,26 @@ def main(argv=None) -> None:
         "--quick", action="store_true", help="hopper, 25 s per learner, 2 snapshots, 2 episodes"
     )
     parser.add_argument("--out", default=str(results.RESULTS))
+    parser.add_argument("--from-json", help="re-summarise a saved record instead of training")
     args = parser.parse_args(argv)
     if args.quick:
         args.envs, args.seconds, args.snapshots, args.episodes = ["hopper"], 25.0, 2, 2
+    stem = "sb3_compare" + ("_quick" if args.quick else "")
+    if args.from_json:  # the summary and page again from a saved record's snapshots
+        result = results.load(pathlib.Path(args.from_json))
+        stem = pathlib.Path(args.from_json).stem
+    else:
+        result = {"machine": results.machine(), "command": results.command(argv),
+                  "fastrl": results.fastrl_version(), "sb3_versions": sb3_versions(),
+                  "seconds": args.seconds, "episodes": args.episodes, "seeds": args.seed,
+                  "runs": train_all(args)}  # fmt: skip
+    result["summary"] = {env: summarize(r) for env, r in result["runs"].items()}
+    results.save(args.out, stem, result, render(result), plot(result))
+    print(render(result))
+
+
+def train_all(args) -> dict[str, dict[str, list[dict]]]:
+    """Every learner on every env, one at a time: their scored snapshots."""
     runs: dict[str, dict[str, list[dict]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         work = pathlib.Path(tmp)
@@ -248,13 +276,7 @@ def main(argv=None) -> None:
                         learner[4:], env, args.seed, args.seconds, args.snapshots, args.episodes, work
                     )
                 runs[env][learner] = snaps
-    result = {"machine": results.machine(), "command": results.command(argv),
-              "fastrl": results.fastrl_version(), "sb3_versions": sb3_versions(),
-              "seconds": args.seconds, "episodes": args.episodes, "seeds": args.seed, "runs": runs,
-              "summary": {env: summarize(r) for env, r in runs.items()}}  # fmt: skip
-    stem = "sb3_compare" + ("_quick" if args.quick else "")
-    results.save(args.out, stem, result, render(result), plot(result))
-    print(render(result))
+    return runs
 
 
 if __name__ == "__main__":

@@ -243,6 +243,45 @@ def test_learner_stability_quick(tmp_path):
     assert (tmp_path / "learner_stability_quick.png").stat().st_size > 0
 
 
+def test_sb3_compare_quick(tmp_path):
+    """fastrl PPO, SB3 PPO and SB3 SAC (in .venv-peers, which the test line sets up) each train on
+    a wall-clock budget, and every snapshot is scored in Gymnasium's Hopper-v5."""
+    result = _run_quick("sb3_compare", tmp_path, "sb3_compare_quick.json")
+    runs = result["runs"]["hopper"]
+    assert list(runs) == ["fastrl_ppo", "sb3_ppo", "sb3_sac"]
+    for learner, snaps in runs.items():
+        assert snaps and all(len(s["returns"]) == 2 and s["env_steps"] > 0 for s in snaps), learner
+        assert [s["seconds"] for s in snaps] == sorted(s["seconds"] for s in snaps)
+        assert snaps[-1]["seconds"] >= result["seconds"] or learner == "fastrl_ppo"  # ends at the budget
+        assert snaps[-1]["seconds"] < result["seconds"] + 60, learner
+    assert [len(runs[k]) for k in ("sb3_ppo", "sb3_sac")] == [2, 2]
+    last = {k: np.mean(snaps[-1]["returns"]) for k, snaps in runs.items()}
+    target = min(last["fastrl_ppo"], max(last["sb3_ppo"], last["sb3_sac"]))
+    assert result["summary"]["hopper"]["target"] == pytest.approx(target)
+    md = (tmp_path / "sb3_compare_quick.md").read_text()
+    assert md.startswith("# fastrl vs Stable-Baselines3") and "| hopper | SB3 SAC |" in md
+
+
+def test_sb3_compare_time_to_the_same_return():
+    from experiments.sb3_compare import summarize, time_ratio
+
+    snap = lambda t, r: {"seconds": t, "env_steps": 10 * t, "returns": [r - 1, r + 1]}  # noqa: E731
+    runs = {"fastrl_ppo": [snap(30, 50), snap(60, 900), snap(90, 800)],
+            "sb3_ppo": [snap(45, 300), snap(90, 700)],
+            "sb3_sac": [snap(30, 750), snap(45, 100), snap(90, 400)]}  # fmt: skip
+    out = summarize(runs)
+    assert out["target"] == 700  # the lower of fastrl's last (800) and SB3's better last (700)
+    fastrl, ppo, sac = (out["learners"][k] for k in runs)
+    assert fastrl["seconds_to_target"] == 60 and ppo["seconds_to_target"] == 90
+    assert sac["seconds_to_target"] is None  # 750 at 30 s, then back below: not reached
+    assert fastrl["last_return"] == 800 and fastrl["best_return"] == 900 and fastrl["last_std"] == 1
+    assert time_ratio(out) == pytest.approx(60 / 90)
+    runs["fastrl_ppo"][-1] = snap(90, 500)  # fastrl ends lower: the target is its last return
+    out = summarize(runs)
+    assert out["target"] == 500 and out["learners"]["fastrl_ppo"]["seconds_to_target"] == 60
+    assert out["learners"]["sb3_ppo"]["seconds_to_target"] == 90
+
+
 def test_time_to_return_quick(tmp_path):
     stem = "time_to_return_inverted_pendulum"
     result = _run_quick("time_to_return", tmp_path, f"{stem}_quick.json")

@@ -20,8 +20,13 @@ VENV="${PEERS_VENV:-$ROOT/.venv-peers}"
 PYTHON="${PEERS_PYTHON:-python3.11}"
 
 if ! command -v "$PYTHON" >/dev/null 2>&1; then
-  echo "setup_peers: $PYTHON not found; install Python 3.11 first" >&2
-  exit 1
+  if [[ -z "${PEERS_PYTHON:-}" ]] && command -v python3 >/dev/null 2>&1; then
+    echo "setup_peers: python3.11 not found; using $(python3 --version 2>&1) (EnvPool's wheels may not fit it)" >&2
+    PYTHON=python3
+  else
+    echo "setup_peers: $PYTHON not found; install Python 3.11 first" >&2
+    exit 1
+  fi
 fi
 
 if [[ ! -x "$VENV/bin/python" ]]; then
