@@ -338,8 +338,10 @@ class Env:
         fresh = self.reset(state.rng)
         done = terminated | truncated
         pick = lambda new, old: jnp.where(done, new, old)  # noqa: E731
+        carried = self._carried_at_reset()
+        data = after.replace(**{f: pick(getattr(fresh.data, f), getattr(after, f)) for f in carried})
         return State(
-            data=jax.tree.map(pick, fresh.data, after),
+            data=data,
             obs=pick(fresh.obs, obs),
             reward=reward,
             terminated=terminated,
@@ -352,6 +354,28 @@ class Env:
             rng=jnp.where(done, fresh.rng, jax.random.fold_in(state.rng, 1)),
             task=jax.tree.map(pick, fresh.task, task),
         )
+
+    def _carried_at_reset(self) -> tuple[str, ...]:
+        """The ``Data`` fields an auto-reset takes from the new episode: the state, the
+        kinematics, and whatever else the next step's reward reads of the state it starts from
+        (found by tracing ``_reward_task``). The other derived fields keep the finished
+        episode's values until the next step recomputes them (a step recomputes every derived
+        field from the state before it reads one), so XLA leaves out the reset's computation of
+        them, e.g. the mass matrix, which the step's own compile and run then skip."""
+        if getattr(self, "_carried", None) is None:
+            model, key = self.model, jax.random.PRNGKey(0)
+            data = jax.eval_shape(lambda: self._reset_data(key, model))
+            task = jax.eval_shape(lambda: self._sample_task(key, model, self._reset_data(key, model)))
+            action = jnp.zeros(model.nu, data.qpos.dtype)
+
+            def reward(before):  # what it reads of ``after`` is computed by the step itself
+                after, zero_task = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), (data, task))
+                return self._reward_task(model, before, after, action, zero_task, key)
+
+            object.__setattr__(self, "_carried", _STATE_FIELDS + _KINEMATICS + tuple(
+                f for f in _fields_read(reward, data) if f not in _STATE_FIELDS + _KINEMATICS
+            ))  # fmt: skip
+        return self._carried
 
     def metric_names(self) -> list[str]:
         """Names of ``State.metrics`` (fixed per env, so batches have a static structure)."""
@@ -433,3 +457,23 @@ class Env:
     def __repr__(self) -> str:
         cls = type(self).__name__
         return f"{cls}({self.name!r}, frame_skip={self.frame_skip}, episode_length={self.episode_length})"
+
+
+# Data fields by role (``physics.Data``'s docstring): the state a step starts from, and the
+# kinematics, which an auto-reset always carries (cheap, and what viewers and users read).
+_STATE_FIELDS = ("qpos", "qvel", "ctrl", "time", "qfrc_applied", "qacc_warmstart", "mocap_pos", "mocap_quat",
+                 "eq_active", "diverged")  # fmt: skip
+_KINEMATICS = ("xpos", "xquat", "xmat", "xipos", "ximat", "xanchor", "xaxis", "geom_xpos", "geom_xmat",
+               "site_xpos", "site_xmat")  # fmt: skip
+
+
+def _fields_read(fn, data) -> tuple[str, ...]:
+    """The fields of ``data`` (abstract ``Data``) that ``fn(data)`` reads, from its traced
+    program: a field counts as read if any operation or output takes it (so a field passed
+    into a nested loop counts, whether or not the loop uses it)."""
+    paths, treedef = jax.tree_util.tree_flatten_with_path(data)
+    jaxpr = jax.make_jaxpr(lambda *leaves: fn(jax.tree.unflatten(treedef, leaves)))(
+        *(x for _, x in paths)
+    ).jaxpr
+    used = {id(v) for eqn in jaxpr.eqns for v in eqn.invars} | {id(v) for v in jaxpr.outvars}
+    return tuple(path[0].name for (path, _), var in zip(paths, jaxpr.invars, strict=True) if id(var) in used)

@@ -53,6 +53,27 @@ def test_auto_reset_starts_fresh_random_episodes(pendulum):
     assert set(lengths) <= set(range(1, 8)) and 7 in lengths
 
 
+@pytest.mark.parametrize("name", ["ant", "humanoid"])
+def test_a_step_reads_its_data_only_through_what_an_auto_reset_carries(name):
+    """An auto-reset takes only some Data fields from the new episode (``Env._carried_at_reset``);
+    a step from a state whose other fields are NaN gives the same result to the bit."""
+    env = envs.make(name, episode_length=2)
+    carried = env._carried_at_reset()
+    assert {"qpos", "qvel", "xpos"} <= set(carried) and "qM" not in carried
+    state = env.reset(jax.random.PRNGKey(3))
+    stale = {f: jnp.full_like(getattr(state.data, f), jnp.nan) for f in state.data.__dataclass_fields__
+             if f not in carried and jnp.issubdtype(getattr(state.data, f).dtype, jnp.floating)}  # fmt: skip
+    assert "qM" in stale and "cvel" in stale
+    action = jnp.full((env.action_size,), 0.3)
+    step = jax.jit(env.step)
+    for _ in range(2):  # the second step ends the episode: the reset state comes back
+        a, b = step(state, action), step(state.replace(data=state.data.replace(**stale)), action)
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+            np.testing.assert_array_equal(x, y)
+        state = a
+    assert bool(state.done)
+
+
 def test_reset_noise_has_the_configured_distribution():
     env = envs.make("halfcheetah")
     n = 10_000
