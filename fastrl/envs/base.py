@@ -299,7 +299,9 @@ class Env:
             them to ``ctrlrange``; the control cost sees the raw action).
         Returns:
           The next state. If the episode ended, ``obs``/``data`` already belong to a new
-          episode and ``final_obs`` is the finished episode's last observation.
+          episode and ``final_obs`` is the finished episode's last observation; of the new
+          episode's ``data``, the fields ``_carried_at_reset`` names are filled, the other
+          derived ones keep this step's values until the next step recomputes them.
         """
         action = jnp.asarray(action, state.obs.dtype)
         if action.shape != (self.action_size,):  # static: checked while tracing
