@@ -5,10 +5,9 @@
 #   bash experiments/peers/setup_peers.sh sb3    # Stable-Baselines3 only (what CI's quick test needs)
 #
 # Installs Brax 0.14.x (which pulls jax, mujoco, mujoco-mjx), EnvPool, Gymnasium and NumPy, and
-# Stable-Baselines3 with PyTorch's CPU build, with Python 3.11. PyTorch comes from its own CPU
-# index where that is reachable, else torch==2.13.0 from pip's configured sources (PyPI's
-# default Linux wheel is the CUDA build, some 3 GB). Idempotent: re-running reuses the venv and
-# only installs what is missing.
+# Stable-Baselines3 with PyTorch's CPU build, with Python 3.11: torch 2.13.0, from PyTorch's CPU
+# index where that resolves, else from pip's configured sources (where PyPI's Linux wheel is the
+# CUDA build, some 3 GB). Idempotent: re-running reuses the venv and only installs what is missing.
 # EnvPool is optional: if no wheel installs for this Python/platform, the script says so and
 # carries on (experiments/peers/envpool_ant.py then cannot run).
 # JAX is deliberately NOT pinned; the peer scripts shim jax.device_put_replicated (removed from
@@ -41,11 +40,12 @@ PIP=("$VENV/bin/python" -m pip --disable-pip-version-check)
 
 echo "setup_peers: installing torch (CPU build), stable-baselines3, gymnasium[mujoco]"
 if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
+  # torch 2.13.0's CPU build (2.13.0+cpu sorts above PyPI's CUDA build of 2.13.0)
+  CPU_INDEX=()
   if "$VENV/bin/python" -c "import socket; socket.getaddrinfo('download.pytorch.org', 443)" 2>/dev/null; then
-    "${PIP[@]}" install --quiet torch --index-url https://download.pytorch.org/whl/cpu
-  else
-    "${PIP[@]}" install --quiet "torch==2.13.0"
+    CPU_INDEX=(--extra-index-url https://download.pytorch.org/whl/cpu)
   fi
+  "${PIP[@]}" install --quiet "torch==2.13.0" "${CPU_INDEX[@]}"
 fi
 "${PIP[@]}" install --quiet "stable-baselines3>=2.4,<3" "gymnasium[mujoco]>=1.0"
 if [[ "${1:-all}" == "sb3" ]]; then
