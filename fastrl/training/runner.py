@@ -144,7 +144,7 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
                 _checkpoint(ckpt, setup, progress, state, ending is not None)
                 if ending:
                     status = ending
-                    _announce_end(setup, progress, ending, stop.set, run_dir, clock)
+                    _announce_end(setup, progress, ending, stop.set, run_dir)
                     break
     finally:
         for out in outs:
@@ -678,13 +678,14 @@ def _stop_reason(setup: _Setup, progress: _Progress, interrupted: bool, clock: _
     if train.stop_at_return is not None and all(x is not None for x in progress.reached):
         return "reached"
     after = train.stop_after_chunks
-    if interrupted or (after is not None and progress.chunk - progress.start_chunk >= after) or clock.out():
+    if interrupted or (after is not None and progress.chunk - progress.start_chunk >= after):
+        return "stopped"
+    if not progress.done(setup) and clock.out():  # a run that has just finished is "done"
         return "stopped"
     return None
 
 
-def _announce_end(setup: _Setup, progress: _Progress, ending: str, interrupted: bool, run_dir: Path,
-                  clock: _Clock) -> None:  # fmt: skip
+def _announce_end(setup: _Setup, progress: _Progress, ending: str, interrupted: bool, run_dir: Path) -> None:
     train = setup.cfg.train
     if ending == "reached":
         who = "every agent's" if setup.agents.batched else "the"

@@ -147,6 +147,9 @@ def test_max_seconds_stops_the_run_on_time_with_a_checkpoint(tmp_path, capsys):
         ckpt.close()
     with pytest.raises(ConfigError, match="train.max_seconds=0"):
         typed([*QUICK, "train.max_seconds=0"])
+    # a run whose last chunk ends past the limit has finished: "done", not "stopped"
+    one = [*QUICK, "train.total_env_steps=256", "train.updates_per_chunk=2", "train.max_seconds=0.001"]
+    assert run(compose_cfg([*one, f"run_dir={tmp_path}/one"]))["status"] == "done"
 
 
 def test_a_time_limit_shortens_the_chunk_that_reaches_it():
