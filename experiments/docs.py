@@ -24,7 +24,7 @@ from pathlib import Path
 
 from experiments import results
 from experiments.results import load, number, table
-from experiments.sb3_compare import time_ratio
+from experiments.sb3_compare import LABELS, time_ratio
 
 PAGES = [results.ROOT / "README.md", *sorted((results.ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(r"(<!-- results: (\S+) -->\n)(.*?)(<!-- /results -->)", re.S)
@@ -220,13 +220,12 @@ def first_minute_block() -> str:
 
 def sb3_block() -> str:
     record = load("sb3_compare")
-    names = {"fastrl_ppo": "fastrl PPO", "sb3_ppo": "SB3 PPO", "sb3_sac": "SB3 SAC"}
     rows = []
     for env, summary in record["summary"].items():
         for learner, r in summary["learners"].items():
             reach = "not reached" if r["seconds_to_target"] is None else f"{r['seconds_to_target']:.0f}"
             last = f"{r['last_return']:.0f} ± {r['last_std']:.0f}"
-            rows.append([env, names[learner], r["env_steps"], last, round(r["best_return"]),
+            rows.append([env, LABELS[learner], r["env_steps"], last, round(r["best_return"]),
                          round(summary["target"]), reach])  # fmt: skip
     header = ["env (Gymnasium v5)", "learner", "env steps", f"return at {record['seconds']:g} s",
               "best snapshot", "target", "s to the target"]  # fmt: skip

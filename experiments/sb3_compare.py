@@ -98,12 +98,12 @@ def score_fastrl(snaps: list[dict], episodes: int, seed: int) -> None:
     import jax
 
     from fastrl import reference
-    from fastrl.training.policy import load_policy, load_run
+    from fastrl.training.config import RunConfig
+    from fastrl.training.policy import load_policy
 
     for snap in snaps:
-        run_dir, step = snap["where"]
-        env = load_run(run_dir, step)[1]
-        policy = load_policy(run_dir, step)
+        policy = load_policy(*snap["where"])  # one restore: the env comes from its saved config
+        env = RunConfig.from_dict(policy.run_config).env.make()
         scores = reference.evaluate(env, policy, episodes, jax.random.PRNGKey(1000 + seed), "gymnasium")
         snap["returns"], snap["lengths"] = scores.returns.tolist(), scores.lengths.tolist()
 

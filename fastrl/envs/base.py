@@ -366,17 +366,20 @@ class Env:
         them, e.g. the mass matrix, which the step's own compile and run then skip."""
         if getattr(self, "_carried", None) is None:
             model, key = self.model, jax.random.PRNGKey(0)
-            data = jax.eval_shape(lambda: self._reset_data(key, model))
-            task = jax.eval_shape(lambda: self._sample_task(key, model, self._reset_data(key, model)))
+
+            def start():
+                data = self._reset_data(key, model)
+                return data, self._sample_task(key, model, data)
+
+            data, task = jax.eval_shape(start)
             action = jnp.zeros(model.nu, data.qpos.dtype)
 
             def reward(before):  # what it reads of ``after`` is computed by the step itself
                 after, zero_task = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), (data, task))
                 return self._reward_task(model, before, after, action, zero_task, key)
 
-            object.__setattr__(self, "_carried", _STATE_FIELDS + _KINEMATICS + tuple(
-                f for f in _fields_read(reward, data) if f not in _STATE_FIELDS + _KINEMATICS
-            ))  # fmt: skip
+            always = _STATE_FIELDS + _KINEMATICS
+            self._carried = always + tuple(f for f in _fields_read(reward, data) if f not in always)
         return self._carried
 
     def metric_names(self) -> list[str]:
