@@ -34,6 +34,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from stable_baselines3 import PPO, SAC  # noqa: E402
 from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
+from stable_baselines3.common.logger import Logger  # noqa: E402
 from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 from stable_baselines3.common.vec_env import VecNormalize  # noqa: E402
 
@@ -115,6 +116,8 @@ def train(args) -> None:
         model = PPO("MlpPolicy", vec, seed=args.seed, verbose=0, device="cpu", **kwargs)
     else:
         model = SAC("MlpPolicy", vec, seed=args.seed, verbose=0, device="cpu", **kwargs)
+    # SB3's default logger makes a folder under /tmp even with verbose=0; log nowhere instead
+    model.set_logger(Logger(folder=None, output_formats=[]))
     t0 = args.t0 if args.t0 is not None else STARTED
     budget = _Budget(t0, args.seconds, args.snapshots, out, vec if args.algo == "ppo" else None)
     print(json.dumps({"event": "start", "seconds": time.time() - t0, "hyperparameters": ZOO[args.algo]

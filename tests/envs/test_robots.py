@@ -111,3 +111,82 @@ def test_go1_joystick_steps_as_mujoco_c_and_observes_its_sensors(x64):
             np.asarray(state.obs), env.observation_from_mujoco(md, state.task), atol=1e-9
         )
     assert not bool(state.done)
+
+
+@pytest.fixture(scope="module")
+def panda():
+    env = envs.make("panda_pick_cube", episode_length=12)
+    reset = jax.jit(jax.vmap(env.reset))
+    step = jax.jit(jax.vmap(env.step))
+    return env, reset, step
+
+
+def test_panda_pick_cube_api_rewards_and_auto_reset(panda):
+    env, reset, step = panda
+    assert (env.observation_size, env.action_size, env.dt) == (66, 8, pytest.approx(0.02))
+    assert env.eval_metrics == ("success",)
+    np.testing.assert_array_equal(env.action_bounds[0], -1.0)
+    rng = np.random.default_rng(0)
+    actions = jnp.asarray(rng.uniform(-1, 1, (12, 6, 8)), jnp.float32)
+    states = _run(reset, step, 0, 6, actions)
+    terms = [k for k in states[-1].metrics if k.startswith("reward_")]
+    assert set(terms) == {f"reward_{k}" for k in env.default_weights}
+    for s in states:  # the named terms sum to the reward; every term lies in [0, its scale]
+        total = sum(np.asarray(s.metrics[k]) for k in terms)
+        np.testing.assert_allclose(total, np.asarray(s.reward), rtol=1e-6)
+        for k in terms:
+            assert (np.asarray(s.metrics[k]) >= 0).all()
+            assert (np.asarray(s.metrics[k]) <= env.default_weights[k[7:]] + 1e-6).all()
+    # each step moves a servo target by at most action_scale, within the ctrlrange
+    first, second = states[0].task["ctrl"], states[1].task["ctrl"]
+    assert np.abs(np.asarray(second - first)).max() <= env.action_scale + 1e-6
+    # targets lie 0.2-0.4 m above the cube's start; the viewer marks them
+    start = reset(jax.random.split(jax.random.PRNGKey(0), 6))
+    target = np.asarray(start.task["target"])
+    assert ((target[:, 2] > 0.2) & (target[:, 2] < 0.5)).all()
+    np.testing.assert_array_equal(np.asarray(jax.vmap(env.markers)(start.task))[:, 0], target)
+    # the 12-step episodes end together; the next episode has fresh targets and servo targets
+    before, end = states[-2], states[-1]
+    assert not np.asarray(before.done).any() and np.asarray(end.truncated).all()
+    assert not np.allclose(np.asarray(end.task["target"]), np.asarray(before.task["target"]))
+    np.testing.assert_allclose(np.asarray(end.task["ctrl"]), np.asarray(start.task["ctrl"]))
+    np.testing.assert_array_equal(np.asarray(end.task["reached_box"]), 0.0)
+    # the same keys and actions give the same run, bit for bit
+    again = _run(reset, step, 0, 6, actions)
+    jax.tree.map(np.testing.assert_array_equal, states[-1], again[-1])
+
+
+def test_panda_pick_cube_steps_as_mujoco_c_and_flags_the_floor_as_its_sensors(x64):
+    """From a reset state (nominal parameters): 20 control steps of random actions, then the
+    hand swung aside and driven into the floor. fastrl's qpos and observation track MuJoCo C
+    stepping the scene with the same servo targets, and ``no_floor_collision`` drops exactly
+    when one of the scene's own floor contact sensors (Playground's) fires."""
+    env = envs.make("panda_pick_cube", randomization={"friction": 0.0, "mass": 0.0, "gain": 0.0})
+    step = jax.jit(env.step)
+    state = env.reset(jax.random.PRNGKey(5))
+    mj = mujoco.MjModel.from_xml_path(str(env.asset_path))
+    md = mujoco.MjData(mj)
+    md.qpos[:], md.qvel[:] = np.asarray(state.data.qpos), np.asarray(state.data.qvel)
+    floor_sensors = [
+        mj.sensor(f"{g}_floor_found").adr[0] for g in ("left_finger_pad", "right_finger_pad", "hand_capsule")
+    ]
+    rng = np.random.default_rng(1)
+    aside, down = np.eye(8)[0], np.array([0, 1, 0, 1, 0, -1, 0, 0.0])
+    actions = [rng.uniform(-1, 1, 8) for _ in range(20)] + [aside] * 15 + [down] * 25
+    touched = []
+    for action in actions:
+        ctrl = np.asarray(env._control(jnp.asarray(action), state.task))
+        state = step(state, jnp.asarray(action))
+        md.ctrl[:] = ctrl
+        for _ in range(env.frame_skip):
+            mujoco.mj_step(mj, md)
+        np.testing.assert_allclose(np.asarray(state.data.qpos), md.qpos, atol=1e-9)
+        # the resting cube's velocities are ~1e-9: rounding of its contact forces
+        np.testing.assert_allclose(
+            np.asarray(state.obs), env.observation_from_mujoco(md, state.task), atol=1e-8
+        )
+        on_floor = bool(md.sensordata[floor_sensors].any())
+        assert float(state.metrics["reward_no_floor_collision"]) == (0.0 if on_floor else 0.25)
+        touched.append(on_floor)
+    assert not any(touched[:20]) and any(touched[20:])  # the scripted part reaches the floor
+    assert not bool(state.done)

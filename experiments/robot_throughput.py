@@ -1,0 +1,124 @@
+"""The real-robot tasks' throughput beside MuJoCo C's ``rollout`` on the same scenes, in one run.
+
+    python -m experiments.robot_throughput                  # every robot task, batch 1024 (~5 min)
+    python -m experiments.robot_throughput --envs panda_pick_cube
+
+For each task of ``fastrl/envs/robots.py`` at batch 1024: control steps/s of fastrl's full env
+step (physics, observation, reward, auto-reset; float32, a jitted scan of ``vmap(env.step)``
+under uniform random actions), on one CPU device and split over 2 (one per core, in a child
+process), as ``experiments.bench_envs`` measures them. Beside it, MuJoCo C stepping the same
+scene through ``mujoco.rollout`` with 2 threads (float64, physics only: no observation or
+reward), ``frame_skip`` physics steps per control step, with the servo targets that the same
+kind of random actions sets from a new episode's start.
+
+Writes ``experiments/results/robot_throughput.{json,md}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+import fastrl
+from experiments import bench_envs, results
+from fastrl import envs
+from fastrl.envs import robots
+
+# each robot task's scene (``robot_scenes.scene_path`` names)
+SCENES = {
+    cls.name: cls.scene
+    for cls in vars(robots).values()
+    if isinstance(cls, type) and issubclass(cls, robots.Env) and isinstance(getattr(cls, "scene", None), str)
+}
+TASKS = sorted(SCENES)
+
+
+def bench_rollout(name: str, batch: int, steps: int, seed: int = 0) -> dict:
+    """MuJoCo C's control steps/s on the task's scene: ``rollout`` with 2 threads, the servo targets
+    of uniform random actions from each env's start (each held for ``frame_skip`` physics steps)."""
+    env = envs.make(name)
+    starts = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(seed), batch))
+    low, high = (jnp.asarray(b) for b in env.action_bounds)
+    actions = jax.random.uniform(
+        jax.random.PRNGKey(seed + 1), (steps, batch, env.action_size), minval=low, maxval=high
+    )
+    ctrl = jax.vmap(jax.vmap(env._control), in_axes=(0, None))(actions, starts.task)  # (steps, batch, nu)
+    control = np.repeat(np.asarray(ctrl, np.float64).transpose(1, 0, 2), env.frame_skip, axis=1)
+    mj = mujoco.MjModel.from_xml_path(str(env.asset_path))
+    md = mujoco.MjData(mj)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty((batch, mujoco.mj_stateSize(mj, spec)))
+    for i in range(batch):
+        md.qpos[:], md.qvel[:] = np.asarray(starts.data.qpos[i]), np.asarray(starts.data.qvel[i])
+        mujoco.mj_getState(mj, md, state[i], spec)
+    datas = [mujoco.MjData(mj) for _ in range(2)]
+    with rollout.Rollout(nthread=2) as r:
+        r.rollout(mj, datas, state, control)  # warm-up
+        t0 = time.perf_counter()
+        r.rollout(mj, datas, state, control)
+        wall = time.perf_counter() - t0
+    return {"control_steps_per_s": batch * steps / wall, "physics_steps_per_control_step": env.frame_skip}
+
+
+def markdown(rows: list[dict]) -> str:
+    lines = [
+        "# Real-robot task throughput (control steps/s, this machine, one run)", "",
+        f"Command: `{results.command()}`. fastrl: the full env step (physics, observation, reward, "
+        "auto-reset; float32) on one CPU device and split over 2 (one per core). MuJoCo C: "
+        "`mujoco.rollout` with 2 threads on the same scene (float64, physics only), the servo targets "
+        "of random actions.", "",
+        "| env | scene | batch | physics steps per control step | fastrl | fastrl, 2 devices "
+        "| MuJoCo C rollout, 2 threads | fastrl / MuJoCo C | 2 devices / MuJoCo C | compile s |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]  # fmt: skip
+    for r in rows:
+        one, two, peer = (r["control_steps_per_s"], r["split_2_devices"]["control_steps_per_s"],
+                          r["mujoco_rollout"]["control_steps_per_s"])  # fmt: skip
+        skip = r["mujoco_rollout"]["physics_steps_per_control_step"]
+        cells = [r["env"], f"`{r['scene']}`", r["batch"], skip, f"{one:,.0f}", f"{two:,.0f}", f"{peer:,.0f}",
+                 f"{one / peer:.2f}", f"{two / peer:.2f}", f"{r['compile_s']:.1f}"]  # fmt: skip
+        lines.append("| " + " | ".join(map(str, cells)) + " |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--envs", nargs="*", default=TASKS, help=f"robot tasks (default: {' '.join(TASKS)})")
+    parser.add_argument("--batch", type=int, default=1024)
+    parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
+    parser.add_argument("--out", default=results.RESULTS, help="results folder")
+    args = parser.parse_args()
+    unknown = sorted(set(args.envs) - set(TASKS))
+    if unknown:
+        parser.error(f"not robot tasks: {', '.join(unknown)}; choose from {', '.join(TASKS)}")
+    rows = []
+    for name in args.envs:
+        row = bench_envs.bench_fastrl(name, args.batch, args.steps)
+        row["scene"] = SCENES[name]
+        row["mujoco_rollout"] = bench_rollout(name, args.batch, args.steps)
+        rows.append(row)
+        print(row, flush=True)
+    job = {
+        "envs": [[r["env"], r["batch"]] for r in rows],
+        "steps": args.steps,
+        "vector": [],
+        "vector_steps": 0,
+    }
+    split = {r["env"]: r for r in bench_envs.in_child(job, 2)}
+    for r in rows:
+        r["split_2_devices"] = split[r["env"]]
+    meta = {"machine": results.machine(), "jax": jax.__version__, "mujoco": mujoco.__version__}
+    results.save(args.out, "robot_throughput", {"meta": meta, "rows": rows}, markdown(rows))
+
+
+if __name__ == "__main__":
+    fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
+    main()
