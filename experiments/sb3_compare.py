@@ -236,13 +236,13 @@ def main(argv=None) -> None:
     parser.add_argument("--episodes", type=int, default=10, help="Gymnasium episodes per snapshot")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
-        "--quick", action="store_true", help="hopper, 25 s per learner, 2 snapshots, 2 episodes"
+        "--quick", action="store_true", help="hopper, 15 s per learner, 2 snapshots, 2 episodes"
     )
     parser.add_argument("--out", default=str(results.RESULTS))
     parser.add_argument("--from-json", help="re-summarise a saved record instead of training")
     args = parser.parse_args(argv)
     if args.quick:
-        args.envs, args.seconds, args.snapshots, args.episodes = ["hopper"], 25.0, 2, 2
+        args.envs, args.seconds, args.snapshots, args.episodes = ["hopper"], 15.0, 2, 2
     stem = "sb3_compare" + ("_quick" if args.quick else "")
     if args.from_json:  # the summary and page again from a saved record's snapshots
         result = results.load(pathlib.Path(args.from_json))

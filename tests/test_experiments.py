@@ -388,6 +388,22 @@ def test_go1_commands_quick(tmp_path):
         assert abs(r["fastrl_score"] - r["mujoco_score"]) < 0.2  # same policy, same starts, 1.5 s
 
 
+@pytest.mark.slow  # compiles the Panda scene for training and for both simulators (~3 min)
+def test_sim_to_sim_quick(tmp_path):
+    """A tiny panda_pick_cube run, then its policy for 10 control steps from the same starts in
+    fastrl and in MuJoCo C: the measurement runs end to end and the two agree on the return."""
+    run_dir = tmp_path / "run"
+    train = [sys.executable, "-m", "fastrl.train", "env=panda_pick_cube", "algo=ppo", "debug=quick",
+             "logger=quiet", f"hydra.run.dir={run_dir}"]  # fmt: skip
+    subprocess.run(train, check=True, cwd=ROOT, timeout=900)
+    cmd = _module("sim_to_sim", str(run_dir), "--episodes", "2", "--steps", "10", "--out", str(tmp_path))
+    subprocess.run(cmd, check=True, cwd=ROOT, timeout=900)
+    row = json.loads((tmp_path / "sim_to_sim_panda_pick_cube.json").read_text())
+    assert row["episodes"] == 2 and row["steps"] == 10 and set(row["fastrl"]) == set(row["mujoco"])
+    assert row["fastrl"]["return"] > 0 and row["kept"]["return"] == pytest.approx(1.0, abs=0.1)
+    assert "| MuJoCo C / fastrl |" in (tmp_path / "sim_to_sim_panda_pick_cube.md").read_text()
+
+
 def test_first_minute_quick(tmp_path):
     result = _run_quick("first_minute", tmp_path, "first_minute_quick.json")
     cold, cached = result["results"]["inverted_pendulum"].values()

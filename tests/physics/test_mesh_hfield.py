@@ -460,7 +460,12 @@ def test_culled_mesh_group_keeps_every_touching_pair(x64):
         np.testing.assert_allclose(o, t, atol=1e-6)
 
 
-@pytest.mark.parametrize("types", [("mesh", "mesh"), ("box", "mesh"), ("cylinder", "cylinder")])
+# the mesh pair in the default suite; the other pairs run the same GJK/EPA code (~40 s each)
+@pytest.mark.parametrize(
+    "types",
+    [("mesh", "mesh"), pytest.param(("box", "mesh"), marks=pytest.mark.slow),
+     pytest.param(("cylinder", "cylinder"), marks=pytest.mark.slow)],
+)  # fmt: skip
 def test_gjk_epa_contacts_are_differentiable(types, x64):
     """GJK and EPA stop when converged (a ``while_loop``, which reverse mode cannot run), yet
     ``jax.grad`` goes through them (``collision_gjk.stops_when_done``): the contact distance's

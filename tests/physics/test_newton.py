@@ -72,14 +72,25 @@ def _compare(mj: mujoco.MjModel, seed: int, seconds: float = 1.0, trajectory: fl
 
 
 @pytest.mark.parametrize("cone", ["pyramidal", "elliptic"])
-@pytest.mark.parametrize("iterations,ls", [(1, 3), (3, 5)])
+# one Newton iteration under the slow marker: 3 iterations exercise the same truncation (~35 s each)
+@pytest.mark.parametrize("iterations,ls", [pytest.param(1, 3, marks=pytest.mark.slow), (3, 5)])
 def test_stack_islands_track_mujoco(cone, iterations, ls, x64):
     mj = mujoco.MjModel.from_xml_string(STACK.format(iterations=iterations, ls=ls, cone=cone))
     steps, whole = _compare(mj, seed=3)
     assert steps < 1e-9 and whole < 1e-9
 
 
-@pytest.mark.parametrize("name,cone", [("elliptic", 1), ("elliptic", 0), ("friction_loss", 0), ("pairs", 0)])
+# the elliptic asset's pyramidal run under the slow marker: its elliptic run and the other
+# assets' pyramidal runs cover both cones (~40 s each)
+@pytest.mark.parametrize(
+    "name,cone",
+    [
+        ("elliptic", 1),
+        pytest.param("elliptic", 0, marks=pytest.mark.slow),
+        ("friction_loss", 0),
+        ("pairs", 0),
+    ],
+)
 def test_assets_truncated_track_mujoco(name, cone, x64):
     mj = _truncated(mujoco.MjModel.from_xml_path(asset(name)), iterations=2, ls=4)
     mj.opt.cone = cone
