@@ -34,7 +34,7 @@ from fastrl.envs import robots
 SCENES = {
     cls.name: cls.scene
     for cls in vars(robots).values()
-    if isinstance(cls, type) and issubclass(cls, robots.Env) and isinstance(getattr(cls, "scene", None), str)
+    if isinstance(cls, type) and issubclass(cls, robots.RobotTask) and cls is not robots.RobotTask
 }
 TASKS = sorted(SCENES)
 

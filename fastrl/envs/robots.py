@@ -21,7 +21,33 @@ from fastrl.physics.collision_driver import contact_layout
 from fastrl.physics.math import cross
 
 
-class Go1Joystick(Env):
+class RobotTask(Env):
+    """A task on a robot scene of the asset wheels (``scene``, a ``robot_scenes.scene_path`` name),
+    stepped as MuJoCo C steps it. Actions are in [-1, 1]: each subclass maps them onto servo
+    targets in units of its ``action_scale`` (``_control``)."""
+
+    scene: str = ""
+    linesearch = "mujoco"
+
+    def __init__(self, *, asset: str | None = None, **kwargs):
+        """Arguments as ``Env``'s (``asset`` defaults to the Playground scene)."""
+        super().__init__(asset=asset or str(robot_scenes.scene_path(self.scene)), **kwargs)
+
+    def _mujoco_model(self) -> mujoco.MjModel:
+        """MuJoCo's own model of the scene (its keyframes, names and addresses)."""
+        return mujoco.MjModel.from_xml_path(str(self.asset_path))
+
+    @property
+    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """[-1, 1] per actuator: an action is an offset in units of ``action_scale``, not a servo
+        target, so the actuators' ctrlrange does not bound it (a learner mapping its squashed
+        output onto the ctrlrange would centre each target half-way across its joint's range).
+        The physics clamps the resulting target to the ctrlrange, as in Playground."""
+        one = np.ones(self.action_size, np.float32)
+        return -one, one.copy()
+
+
+class Go1Joystick(RobotTask):
     """Unitree Go1 follows a commanded velocity on flat ground (``env=go1_joystick``).
 
     Playground's ``Go1JoystickFlatTerrain``: the feet-only scene (only the four foot spheres
@@ -63,7 +89,6 @@ class Go1Joystick(Env):
 
     name = "go1_joystick"
     scene = "playground/locomotion/go1/scene_mjx_feetonly_flat_terrain"
-    linesearch = "mujoco"
     default_frame_skip = 5
     default_episode_length = 1000
     default_randomization = {"friction": 0.3, "mass": 0.1, "gain": 0.1}
@@ -83,13 +108,12 @@ class Go1Joystick(Env):
     noise = (0.1, 0.2, 0.05, 0.03, 1.5)  # linvel, gyro, gravity, joint angles, joint velocities
     feet = ("FR", "FL", "RR", "RL")
 
-    def __init__(self, *, asset: str | None = None, observation_noise: float = 1.0, **kwargs):
+    def __init__(self, *, observation_noise: float = 1.0, **kwargs):
         """``observation_noise`` scales the observation noise (0: none); other arguments as
-        ``Env``'s (``asset`` defaults to the Playground scene)."""
-        path = asset or str(robot_scenes.scene_path(self.scene))
-        super().__init__(asset=path, **kwargs)
+        ``RobotTask``'s."""
+        super().__init__(**kwargs)
         self.observation_noise = float(observation_noise)
-        mj = mujoco.MjModel.from_xml_path(path)
+        mj = self._mujoco_model()
         key = mj.key("home")
         self._home_qpos = np.asarray(key.qpos, np.float64)
         self._stand = jnp.asarray(key.qpos[7:], self.model.qpos0.dtype)
@@ -159,16 +183,6 @@ class Go1Joystick(Env):
             jnp.asarray(self.noise, dtype), jnp.array([3, 3, 3, 12, 12]), total_repeat_length=33
         )
         return self.observation_noise * scale * jax.random.uniform(key, (33,), dtype, -1.0, 1.0)
-
-    @property
-    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """[-1, 1] per joint: an action is an offset from the standing pose in units of
-        ``action_scale``, not a servo target, so the actuators' ctrlrange does not bound it (a
-        learner mapping its squashed output onto the ctrlrange would centre each joint's target
-        half-way across its range, far from standing). The physics clamps the resulting target
-        to the ctrlrange, as in Playground."""
-        one = np.ones(self.action_size, np.float32)
-        return -one, one.copy()
 
     def _control(self, action, task):
         return self._stand + self.action_scale * action
@@ -275,7 +289,7 @@ class Go1Joystick(Env):
         return terms, fell, extra, task
 
 
-class PandaPickCube(Env):
+class PandaPickCube(RobotTask):
     """A Franka Panda picks a cube off the floor and holds it at a target (``env=panda_pick_cube``).
 
     Playground's ``PandaPickCube`` on its scene (``mjx_single_cube``: the Menagerie Panda with
@@ -308,7 +322,6 @@ class PandaPickCube(Env):
 
     name = "panda_pick_cube"
     scene = "playground/manipulation/franka_emika_panda/mjx_single_cube"
-    linesearch = "mujoco"
     default_frame_skip = 4
     default_episode_length = 150
     default_randomization = {"friction": 0.2, "mass": 0.1, "gain": 0.1}
@@ -327,11 +340,10 @@ class PandaPickCube(Env):
     target_range = ((-0.2, -0.2, 0.2), (0.2, 0.2, 0.4))
     arm = tuple(f"joint{i}" for i in range(1, 8))
 
-    def __init__(self, *, asset: str | None = None, **kwargs):
-        """Arguments as ``Env``'s (``asset`` defaults to the Playground scene)."""
-        path = asset or str(robot_scenes.scene_path(self.scene))
-        super().__init__(asset=path, **kwargs)
-        mj = mujoco.MjModel.from_xml_path(path)
+    def __init__(self, **kwargs):
+        """Arguments as ``RobotTask``'s."""
+        super().__init__(**kwargs)
+        mj = self._mujoco_model()
         key = mj.key("home")
         dtype = self.model.qpos0.dtype
         self._home_qpos = np.asarray(key.qpos, np.float64)
@@ -375,12 +387,6 @@ class PandaPickCube(Env):
 
     def markers(self, task):
         return task["target"][None]
-
-    @property
-    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """[-1, 1] per servo: an action moves a servo's target by ``action_scale`` times it."""
-        one = np.ones(self.action_size, np.float32)
-        return -one, one.copy()
 
     def _control(self, action, task):
         return jnp.clip(task["ctrl"] + self.action_scale * action, self._lo, self._hi)

@@ -17,12 +17,15 @@ from fastrl import envs
 NOMINAL = {"friction": 0.0, "mass": 0.0, "gain": 0.0}
 
 
+def _batched(name, **overrides):
+    """The env and its jitted batched reset and step."""
+    env = envs.make(name, **overrides)
+    return env, jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+
+
 @pytest.fixture(scope="module")
 def go1():
-    env = envs.make("go1_joystick", episode_length=30)
-    reset = jax.jit(jax.vmap(env.reset))
-    step = jax.jit(jax.vmap(env.step))
-    return env, reset, step
+    return _batched("go1_joystick", episode_length=30)
 
 
 def _run(reset, step, seed, n, actions):
@@ -115,10 +118,7 @@ def test_go1_joystick_steps_as_mujoco_c_and_observes_its_sensors(x64):
 
 @pytest.fixture(scope="module")
 def panda():
-    env = envs.make("panda_pick_cube", episode_length=12)
-    reset = jax.jit(jax.vmap(env.reset))
-    step = jax.jit(jax.vmap(env.step))
-    return env, reset, step
+    return _batched("panda_pick_cube", episode_length=12)
 
 
 def test_panda_pick_cube_api_rewards_and_auto_reset(panda):
