@@ -210,6 +210,11 @@ class Env:
         """(nu,) the controls an action sets (default: the action itself, as in Gymnasium)."""
         return action
 
+    def _before_physics(self, data: Data, task: dict) -> Data:
+        """The state a step's physics starts from (default: ``data`` itself; a task may push the
+        robot here, e.g. a kick to its root velocity that ``task`` holds)."""
+        return data
+
     # Goal-conditioned envs override these three instead of ``_observe``/``_reward``; the task
     # (a dict of arrays, e.g. a target position) lives in ``State.task``.
 
@@ -310,7 +315,7 @@ class Env:
                 f"{action.shape}; for a batch, jax.vmap(env.step) over states and actions"
             )
         model = self._model(state.params)
-        before = state.data
+        before = self._before_physics(state.data, state.task)
 
         ctrl = self._control(action, state.task)
 

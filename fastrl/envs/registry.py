@@ -34,6 +34,7 @@ for _cls in (
     scenes.AntGoal,
     robots.Go1Joystick,
     robots.PandaPickCube,
+    robots.BerkeleyHumanoidJoystick,
 ):
     register(_cls)
 
