@@ -6,7 +6,8 @@
 The run's policy (``fastrl.load_policy``, its deterministic action) drives the run's env for
 ``--episodes`` episodes in fastrl (float32, as trained), with domain randomisation off, and
 from the same starts (each episode's first ``qpos``, ``qvel`` and task) in MuJoCo C through
-the ``mujoco`` bindings, float64, the scene as written. On MuJoCo C's side the policy sees the
+the ``mujoco`` bindings, float64, the scene as written, with the env's own change before each
+step's physics (a push, a goal cube's pose). On MuJoCo C's side the policy sees the
 task's ``observation_from_mujoco`` of ``mjData``; each step's reward, termination and the
 task's next state (e.g. redrawn commands, the servo targets an action moved) come from the
 env's own reward function applied to MuJoCo C's state (its kinematics and contacts computed
@@ -80,6 +81,12 @@ def in_mujoco(env, policy, start, steps: int, seed: int):
         first = jax.jit(
             lambda qpos, qvel: physics.forward(model, physics.make_data(model, qpos=qpos, qvel=qvel))
         )
+
+        @jax.jit
+        def prepare(qpos, qvel, task):  # the env's change before a step's physics (a push, a goal)
+            data = env._before_physics(physics.make_data(model, qpos=qpos, qvel=qvel), task)
+            return data.qvel, data.mocap_pos, data.mocap_quat
+
         act = jax.jit(policy)
         returns, metrics = [], {k: [] for k in names}
         for i in range(start.obs.shape[0]):
@@ -94,6 +101,10 @@ def in_mujoco(env, policy, start, steps: int, seed: int):
                 action = jnp.asarray(act(jnp.asarray(obs, jnp.float32)), jnp.float64)
                 ctrl = np.asarray(env._control(action, task))
                 md.ctrl[:] = ctrl
+                qvel, mocap_pos, mocap_quat = prepare(md.qpos.copy(), md.qvel.copy(), task)
+                md.qvel[:] = np.asarray(qvel)
+                if mj.nmocap:
+                    md.mocap_pos[:], md.mocap_quat[:] = np.asarray(mocap_pos), np.asarray(mocap_quat)
                 for _ in range(env.frame_skip):
                     mujoco.mj_step(mj, md)
                 key = jax.random.fold_in(jax.random.PRNGKey(seed), i * 100_003 + t)

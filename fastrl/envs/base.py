@@ -137,6 +137,8 @@ class Env:
     # The Newton solver's line search: "exact" for fastrl's own scenes (the budgets in
     # fastrl/assets/README.md were measured for it); "mujoco" steps a scene as MuJoCo C does.
     linesearch: str = "exact"
+    # MJX's broad-phase caps (``physics.load_mjcf(mjx_caps=...)``), for scenes that set them
+    mjx_caps: bool = False
     # Whether gradients of the return through the physics are informative (smooth dynamics and
     # rewards); analytic policy gradients refuse envs without, explaining ``gradient_note``.
     smooth_gradients: bool = False
@@ -184,7 +186,9 @@ class Env:
             raise FileNotFoundError(f"{self.name}: asset {path} does not exist")
         self.asset_path = path  # the MJCF file the model was loaded from
         kw = {} if solver_iterations is None else {"solver_iterations": int(solver_iterations)}
-        model = physics.load_mjcf(path, integrator=integrator, linesearch=self.linesearch, **kw)
+        model = physics.load_mjcf(
+            path, integrator=integrator, linesearch=self.linesearch, mjx_caps=self.mjx_caps, **kw
+        )
         if timestep is not None:
             model = model.replace(timestep=jnp.asarray(timestep, model.timestep.dtype))
         self.model: Model = model

@@ -35,6 +35,7 @@ for _cls in (
     robots.Go1Joystick,
     robots.PandaPickCube,
     robots.BerkeleyHumanoidJoystick,
+    robots.LeapCubeReorient,
 ):
     register(_cls)
 

@@ -18,7 +18,7 @@ import numpy as np
 from fastrl import robot_scenes
 from fastrl.envs.base import Env
 from fastrl.physics.collision_driver import contact_layout
-from fastrl.physics.math import cross
+from fastrl.physics.math import cross, quat_conj, quat_integrate, quat_mul, quat_to_mat
 
 
 class RobotTask(Env):
@@ -41,7 +41,8 @@ class RobotTask(Env):
         """The contact slots (indices into ``data.contact_dist``) of the two named geoms' pair."""
         m = self.model
         want = {m.geom_names.index(geom1), m.geom_names.index(geom2)}
-        pairs = [i for i, ab in enumerate(zip(m.pair_geom1, m.pair_geom2, strict=True)) if set(map(int, ab)) == want]
+        both = zip(m.pair_geom1, m.pair_geom2, strict=True)
+        pairs = [i for i, ab in enumerate(both) if set(map(int, ab)) == want]
         if not pairs:
             raise ValueError(f"{self.name}: geoms {geom1!r} and {geom2!r} never collide in {self.asset_path}")
         return np.flatnonzero(np.isin(contact_layout(m), pairs))
@@ -566,7 +567,8 @@ class BerkeleyHumanoidJoystick(RobotTask):
         dtype = data.qpos.dtype
         command = self._draw_command(k1, dtype)
         hz = jax.random.uniform(k2, (), dtype, *self.gait_hz)
-        interval = jnp.round(jax.random.uniform(k3, (), dtype, *self.push_seconds) / self.dt).astype(jnp.int32)
+        seconds = jax.random.uniform(k3, (), dtype, *self.push_seconds)
+        interval = jnp.round(seconds / self.dt).astype(jnp.int32)
         return {
             "command": command,
             "step": jnp.zeros((), jnp.int32),
@@ -615,7 +617,8 @@ class BerkeleyHumanoidJoystick(RobotTask):
         xp = np if isinstance(sensed, np.ndarray) else jnp
         s = sensed + task["noise"]
         phase = task["phase"]
-        return xp.concatenate([s[:9], task["command"], s[9:], task["last_action"], xp.cos(phase), xp.sin(phase)])
+        clock = [xp.cos(phase), xp.sin(phase)]
+        return xp.concatenate([s[:9], task["command"], s[9:], task["last_action"], *clock])
 
     def _sensed(self, data):
         frame = data.site_xmat[self._imu]
@@ -663,6 +666,7 @@ class BerkeleyHumanoidJoystick(RobotTask):
         touchdown = (task["air_time"] > 0) & contact
         air_time = task["air_time"] + dt
         feet_z = after.site_xpos[self._feet][:, 2]
+        swing_z = self._clock_height(task["phase"], self.foot_height)
         lo, hi = self._soft_limits
         raw = {
             "tracking_lin_vel": jnp.exp(-jnp.sum((command[:2] - local[:2]) ** 2) / self.tracking_sigma),
@@ -674,7 +678,7 @@ class BerkeleyHumanoidJoystick(RobotTask):
             "feet_air_time": jnp.sum(jnp.minimum(air_time - 0.2, 0.3) * touchdown)
             * (jnp.linalg.norm(command) > 0.1),
             "feet_slip": -jnp.linalg.norm(trunk_vel[:2]) * jnp.sum(touching),
-            "feet_phase": jnp.exp(-jnp.sum((feet_z - self._clock_height(task["phase"], self.foot_height)) ** 2) / 0.01),
+            "feet_phase": jnp.exp(-jnp.sum((feet_z - swing_z) ** 2) / 0.01),
             "termination": -fell.astype(dtype),
             "joint_deviation_knee": -jnp.sum(jnp.abs(q[self._knees] - self._stand[self._knees])),
             "joint_deviation_hip": -jnp.sum(jnp.abs(q[self._hips] - self._stand[self._hips]))
@@ -707,4 +711,196 @@ class BerkeleyHumanoidJoystick(RobotTask):
             "command_speed": jnp.linalg.norm(command[:2]), "speed": jnp.linalg.norm(local[:2]),
             "fell": fell.astype(dtype),
         }  # fmt: skip
+        return terms, fell, extra, task
+
+
+def _tolerance(x, upper, margin):
+    """dm_control's ``tolerance`` with bounds (0, ``upper``) and a linear sigmoid: 1 within the
+    bounds, falling linearly to 0.1 at ``margin`` beyond them and to 0 at margin / 0.9."""
+    beyond = jnp.maximum(x - upper, 0.0) / margin
+    return jnp.maximum(1.0 - 0.9 * beyond, 0.0)
+
+
+class LeapCubeReorient(RobotTask):
+    """The Leap hand turns a cube to one target orientation after another
+    (``env=leap_cube_reorient``).
+
+    Playground's ``LeapCubeReorient`` on its scene (``scene_mjx_cube``: the 16-joint Leap hand,
+    palm up, its links and the 7 cm cube colliding as boxes), 0.01 s physics steps, 5 per control
+    step (20 Hz), 1000-step (50 s) episodes. An action (16, in [-1, 1]) moves each servo target
+    by ``action_scale`` (0.5 rad) times the action, clipped to its ctrlrange.
+
+    Starts: the hand at its ``home`` pose plus N(0, 0.1) per joint (clipped to the ctrlrange),
+    the cube on the palm at a uniformly random orientation, and a uniformly random target
+    orientation. Each time the cube comes within ``success_angle`` (0.1 rad) of the target,
+    the target starts to turn (by 1-5 rad/s per axis, decaying by 0.8 each step: about 1.5 rad
+    in all), as Playground's.
+
+    Observation (57): joint angles, joint angles minus servo targets, palm minus cube position,
+    the last two rows of the rotation from the target to the cube, and the last action, with
+    Playground's noise (joint angles +-0.05, cube position +-0.02, the cube's quaternion plus
+    N(0, 0.1), renormalised). (Playground's critic also reads noise-free privileged state.)
+
+    Reward: Playground's terms and scales: ``orientation`` 5 tolerance(angle to target, 0.2,
+    margin pi), ``position`` 0.5 tolerance(|palm - cube|, 0.02, margin 0.05),
+    ``termination`` -100 when the cube falls, ``hand_pose`` -0.5 |q - home|^2,
+    ``action_rate`` -1e-3 (|a - a'|^2 + |a - 2a' + a''|^2), ``energy`` -1e-3 sum |qdot tau|,
+    each multiplied by the control step (0.05 s); ``success`` 100 per target reached (not
+    multiplied). The episode ends when the cube falls below the palm (z < -0.05).
+    ``targets_reached``: targets reached in the episode so far.
+
+    Physics: with MJX's broad-phase caps as Playground's scene sets them by default (at most
+    12 colliding pairs and 30 contacts: ``mjx_caps=False`` steps the scene as MuJoCo C does).
+    Domain randomisation (on by default): friction +-20%, masses +-10%, servo gains +-10%.
+    """
+
+    name = "leap_cube_reorient"
+    scene = "playground/manipulation/leap_hand/scene_mjx_cube"
+    default_frame_skip = 5
+    default_episode_length = 1000
+    default_randomization = {"friction": 0.2, "mass": 0.1, "gain": 0.1}
+    default_weights = {
+        "orientation": 5.0, "position": 0.5, "termination": 100.0, "hand_pose": 0.5,
+        "action_rate": 1e-3, "energy": 1e-3, "success": 100.0,
+    }  # fmt: skip
+    gradient_note = "the cube moves only through contacts, whose gradients are zero or explosive"
+    eval_metrics = ("targets_reached",)
+    mjx_caps = True
+    action_scale = 0.5
+    success_angle = 0.1
+    noise = (0.05, 0.02, 0.1)  # joint angles, cube position, cube quaternion (normal)
+
+    def __init__(self, *, observation_noise: float = 1.0, mjx_caps: bool = True, **kwargs):
+        """``observation_noise`` scales the observation noise (0: none); ``mjx_caps``: MJX's
+        broad-phase caps (False: the scene as MuJoCo C steps it); other arguments as
+        ``RobotTask``'s."""
+        self.mjx_caps = bool(mjx_caps)
+        super().__init__(**kwargs)
+        self.observation_noise = float(observation_noise)
+        mj = self._mujoco_model()
+        key = mj.key("home")
+        dtype = self.model.qpos0.dtype
+        self._home = jnp.asarray(key.qpos[:16], dtype)
+        self._mocap_pos = jnp.asarray(key.mpos, dtype)
+        self._lo, self._hi = (jnp.asarray(x, dtype) for x in np.asarray(mj.actuator_ctrlrange).T)
+        m = self.model
+        self._cube = m.body_names.index("cube")
+        self._palm = m.site_names.index("grasp_site")
+
+    # ---------------------------------------------------------------- episode and task
+
+    @staticmethod
+    def _random_quat(key, dtype):
+        q = jax.random.normal(key, (4,), dtype)
+        return q / jnp.linalg.norm(q)
+
+    def _reset_qpos_qvel(self, key, model):
+        k1, k2, k3 = jax.random.split(key, 3)
+        dtype = model.qpos0.dtype
+        hand = jnp.clip(self._home + 0.1 * jax.random.normal(k1, (16,), dtype), self._lo, self._hi)
+        pos = jnp.asarray([0.1, 0.0, 0.05], dtype) + jax.random.uniform(k2, (3,), dtype, -0.01, 0.01)
+        qpos = jnp.concatenate([hand, pos, self._random_quat(k3, dtype)])
+        return qpos, jnp.zeros(model.nv, dtype)
+
+    def _sample_task(self, key, model, data):
+        k1, k2 = jax.random.split(key)
+        dtype = data.qpos.dtype
+        return {
+            "goal": self._random_quat(k1, dtype),
+            "goal_spin": jnp.zeros(3, dtype),
+            "ctrl": data.qpos[:16],
+            "last_action": jnp.zeros(16, dtype),
+            "last_last_action": jnp.zeros(16, dtype),
+            "targets_reached": jnp.zeros((), dtype),
+            "noise": self._noise(k2, dtype),
+        }
+
+    def _noise(self, key, dtype):
+        k1, k2, k3 = jax.random.split(key, 3)
+        joint, pos, quat = (self.observation_noise * s for s in self.noise)
+        return {
+            "joint": joint * jax.random.uniform(k1, (16,), dtype, -1.0, 1.0),
+            "pos": pos * jax.random.uniform(k2, (3,), dtype, -1.0, 1.0),
+            "quat": quat * jax.random.normal(k3, (4,), dtype),
+        }
+
+    def markers(self, task):
+        """The target: the cube's resting spot above the palm's keyframe goal position."""
+        return self._mocap_pos[None]
+
+    def _control(self, action, task):
+        return jnp.clip(task["ctrl"] + self.action_scale * action, self._lo, self._hi)
+
+    def _before_physics(self, data, task):
+        # the goal cube (a mocap body) shows the target and collides as Playground's does
+        return data.replace(mocap_pos=self._mocap_pos, mocap_quat=task["goal"][None])
+
+    # ---------------------------------------------------------------- observation and reward
+
+    def _features(self, task, qpos, palm, cube_pos, cube_quat):
+        """The observation from its parts (fastrl's data or MuJoCo C's ``mjData``)."""
+        xp = jnp if isinstance(qpos, jax.Array) else np
+        noise = task["noise"]
+        joints = qpos[:16] + noise["joint"]
+        quat = cube_quat + noise["quat"]
+        quat = quat / xp.linalg.norm(quat)
+        # the last two rows of the rotation from the target to the (noisy) cube
+        diff = quat_to_mat(quat_mul(jnp.asarray(quat), quat_conj(jnp.asarray(task["goal"])))).ravel()[3:]
+        cube = palm - (cube_pos + noise["pos"])
+        return xp.concatenate([joints, joints - task["ctrl"], cube, xp.asarray(diff), task["last_action"]])
+
+    def _observe_task(self, model, data, task):
+        # poses as the scene's sensors read them: of the step's last forward pass, as MuJoCo C's
+        c = self._cube
+        return self._features(task, data.qpos, data.site_xpos[self._palm], data.xpos[c], data.xquat[c])
+
+    def observation_from_mujoco(self, md: mujoco.MjData, task: dict) -> np.ndarray:
+        """The observation of MuJoCo C's ``mjData`` (after ``mj_step``), from the scene's own
+        sensors, with ``task``'s target, servo targets, last action and noise."""
+        task = jax.tree.map(np.asarray, task)
+        sensor = lambda name: np.asarray(md.sensor(name).data)  # noqa: E731
+        return self._features(
+            task, md.qpos.copy(), sensor("palm_position"), sensor("cube_position"), sensor("cube_orientation")
+        )
+
+    def _angle_to_goal(self, quat, goal):
+        diff = quat_mul(quat, quat_conj(goal))
+        diff = diff / jnp.linalg.norm(diff)
+        return 2.0 * jnp.arcsin(jnp.minimum(jnp.linalg.norm(diff[1:]), 1.0))
+
+    def _reward_task(self, model, before, after, action, task, key):
+        w, dt = self.reward_weights, self.dt
+        dtype = after.qpos.dtype
+        cube = after.xpos[self._cube]
+        angle = self._angle_to_goal(after.xquat[self._cube], task["goal"])
+        reached = angle < self.success_angle
+        fell = cube[2] < -0.05
+        q, qd = after.qpos[:16], after.qvel[:16]
+        last, last_last = task["last_action"], task["last_last_action"]
+        raw = {
+            "orientation": _tolerance(angle, 0.2, jnp.pi),
+            "position": _tolerance(jnp.linalg.norm(after.site_xpos[self._palm] - cube), 0.02, 0.05),
+            "termination": -fell.astype(dtype),
+            "hand_pose": -jnp.sum((q - self._home) ** 2),
+            "action_rate": -(jnp.sum((action - last) ** 2) + jnp.sum((action - 2 * last + last_last) ** 2)),
+            "energy": -jnp.sum(jnp.abs(qd) * jnp.abs(after.actuator_force)),
+        }
+        terms = {k: w[k] * v * dt for k, v in raw.items()}
+        terms["success"] = w["success"] * reached.astype(dtype)
+        # a reached target starts turning away: 1-5 rad/s per axis, decaying by 0.8 per step
+        k_spin, k_noise = jax.random.split(key)
+        spin = jnp.where(
+            reached, 3.0 + jax.random.uniform(k_spin, (3,), dtype, -2.0, 2.0) ** 3, 0.8 * task["goal_spin"]
+        )
+        count = task["targets_reached"] + reached
+        task = {
+            "goal": quat_integrate(task["goal"], spin, 2 * jnp.asarray(dt, dtype)),
+            "goal_spin": spin,
+            "ctrl": self._control(action, task),
+            "last_action": action,
+            "last_last_action": last,
+            "targets_reached": count,
+            "noise": self._noise(k_noise, dtype),
+        }
+        extra = {"angle_to_target": angle, "targets_reached": count, "fell": fell.astype(dtype)}
         return terms, fell, extra, task

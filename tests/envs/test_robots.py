@@ -190,3 +190,147 @@ def test_panda_pick_cube_steps_as_mujoco_c_and_flags_the_floor_as_its_sensors(x6
         touched.append(on_floor)
     assert not any(touched[:20]) and any(touched[20:])  # the scripted part reaches the floor
     assert not bool(state.done)
+
+
+@pytest.fixture(scope="module")
+def humanoid():
+    env, reset, step = _batched("humanoid_joystick", episode_length=12)
+    env.push_seconds = (0.1, 0.1)  # a kick every 5 control steps, to see them in a short run
+    return env, reset, step
+
+
+def test_humanoid_joystick_api_pushes_auto_reset_and_determinism(humanoid):
+    env, reset, step = humanoid
+    assert (env.observation_size, env.action_size, env.dt) == (52, 12, pytest.approx(0.02))
+    np.testing.assert_array_equal(env.action_bounds[1], 1.0)
+    rng = np.random.default_rng(0)
+    actions = jnp.asarray(rng.uniform(-1, 1, (12, 8, 12)), jnp.float32)
+    states = _run(reset, step, 0, 8, actions)
+    terms = [k for k in states[-1].metrics if k.startswith("reward_")]
+    assert set(terms) == {f"reward_{k}" for k in env.default_weights} | {"reward_floor"}
+    for s in states:  # the named terms sum to the reward, which Playground's clip keeps >= 0
+        total = sum(np.asarray(s.metrics[k]) for k in terms)
+        np.testing.assert_allclose(total, np.asarray(s.reward), atol=1e-6)
+        assert (np.asarray(s.reward) >= 0).all()
+    start = reset(jax.random.split(jax.random.PRNGKey(0), 8))
+    cmd = np.asarray(start.task["command"])
+    assert (np.abs(cmd) <= env.command_limit).all() and np.ptp(cmd, axis=0).min() > 0
+    np.testing.assert_allclose(np.asarray(start.task["phase"]), [[0, np.pi]] * 8, atol=1e-6)
+    # the gait clock advances by 2 pi (1.25-1.5 Hz) dt each step
+    step_size = np.asarray(states[0].task["phase"] - start.task["phase"])[:, 0]
+    lo, hi = 2 * np.pi * np.asarray(env.gait_hz) * env.dt
+    assert (step_size >= lo - 1e-6).all() and (step_size <= hi + 1e-6).all()
+    # a kick is due before the 5th and 10th steps (every 5), 0.1-2 m/s in the plane, none between
+    kicks = np.stack([np.linalg.norm(np.asarray(s.task["push"]), axis=-1) for s in states[:11]])
+    due = np.zeros(11, bool)
+    due[[3, 8]] = True  # the task after step k holds the kick of step k + 1 (counted from 0)
+    assert (kicks[~due] == 0).all() and ((kicks[due] >= 0.1) & (kicks[due] <= 2.0 + 1e-6)).all()
+    # the 12-step episodes end together; the next has fresh commands and a restarted clock
+    before, end = states[-2], states[-1]
+    assert not np.asarray(before.done).any() and np.asarray(end.truncated).all()
+    assert not np.allclose(np.asarray(end.task["command"]), np.asarray(before.task["command"]))
+    np.testing.assert_allclose(np.asarray(end.task["phase"]), [[0, np.pi]] * 8, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(end.task["last_action"]), 0.0)
+    again = _run(reset, step, 0, 8, actions)
+    jax.tree.map(np.testing.assert_array_equal, states[-1], again[-1])
+
+
+def test_humanoid_joystick_steps_as_mujoco_c_with_its_kicks_and_foot_sensors(x64):
+    """20 control steps of random actions, with a kick every 5 steps: fastrl's qpos, observation
+    (noise off, nominal parameters) and foot contacts against MuJoCo C stepping the same scene
+    with the same servo targets and kicks, observed through its own IMU and foot sensors."""
+    env = envs.make("humanoid_joystick", randomization=NOMINAL, observation_noise=0.0)
+    env.push_seconds = (0.1, 0.1)
+    step = jax.jit(env.step)
+    state = env.reset(jax.random.PRNGKey(5))
+    mj = mujoco.MjModel.from_xml_path(str(env.asset_path))
+    md = mujoco.MjData(mj)
+    md.qpos[:], md.qvel[:] = np.asarray(state.data.qpos), np.asarray(state.data.qvel)
+    feet = [mj.sensor(f"{f}_foot1_floor_found").adr[0] for f in "lr"]
+    rng = np.random.default_rng(1)
+    kicked, touched = 0, []
+    for _ in range(20):
+        action = rng.uniform(-1, 1, 12)
+        md.qvel[:2] += np.asarray(state.task["push"])
+        kicked += bool(np.any(np.asarray(state.task["push"]) != 0))
+        md.ctrl[:] = np.asarray(env._control(jnp.asarray(action), state.task))
+        state = step(state, jnp.asarray(action))
+        for _ in range(env.frame_skip):
+            mujoco.mj_step(mj, md)
+        np.testing.assert_allclose(np.asarray(state.data.qpos), md.qpos, atol=1e-9)
+        np.testing.assert_allclose(
+            np.asarray(state.obs), env.observation_from_mujoco(md, state.task), atol=1e-9
+        )
+        np.testing.assert_array_equal(np.asarray(state.task["last_contact"]), md.sensordata[feet] > 0)
+        touched.append(md.sensordata[feet] > 0)
+    assert kicked == 4 and np.any(touched) and not bool(state.done)
+
+
+@pytest.fixture(scope="module")
+def leap():
+    return _batched("leap_cube_reorient", episode_length=8)
+
+
+def test_leap_cube_reorient_api_turning_targets_auto_reset_and_determinism(leap):
+    env, reset, step = leap
+    assert (env.observation_size, env.action_size, env.dt) == (57, 16, pytest.approx(0.05))
+    assert env.eval_metrics == ("targets_reached",) and env.mjx_caps
+    start = reset(jax.random.split(jax.random.PRNGKey(0), 4))
+    # a target the cube will match after the first step (the goal does not change the physics) is
+    # reached there: the bonus, a count, and the target starts turning
+    cube = step(start, jnp.zeros((4, 16))).data.xquat[:, env._cube]
+    matched = start.replace(task={**start.task, "goal": cube})
+    actions = jnp.zeros((8, 4, 16))
+    states = _run(lambda _: matched, step, 0, 4, actions)
+    first = states[0]
+    np.testing.assert_array_equal(np.asarray(first.metrics["reward_success"]), 100.0)
+    np.testing.assert_array_equal(np.asarray(first.task["targets_reached"]), 1.0)
+    spin = np.asarray(first.task["goal_spin"])
+    assert ((spin >= -5) & (spin <= 11)).all() and (np.abs(spin) > 0).all()
+    turned = np.asarray(jax.vmap(env._angle_to_goal)(first.task["goal"], cube))
+    np.testing.assert_allclose(turned, np.linalg.norm(spin, axis=-1) * 2 * env.dt, rtol=1e-4)
+    np.testing.assert_allclose(np.asarray(states[1].task["goal_spin"]), 0.8 * spin, rtol=1e-6)
+    terms = [k for k in first.metrics if k.startswith("reward_")]
+    assert set(terms) == {f"reward_{k}" for k in env.default_weights}
+    for s in states:  # the named terms sum to the reward
+        total = sum(np.asarray(s.metrics[k]) for k in terms)
+        np.testing.assert_allclose(total, np.asarray(s.reward), rtol=1e-5)
+    # each step moves a servo target by at most action_scale
+    rng = np.random.default_rng(0)
+    moved = step(start, jnp.asarray(rng.uniform(-1, 1, (4, 16)), jnp.float32))
+    assert np.abs(np.asarray(moved.task["ctrl"] - start.task["ctrl"])).max() <= env.action_scale + 1e-6
+    # the 8-step episodes end together: fresh targets, counts and servo targets; same keys, same run
+    before, end = states[-2], states[-1]
+    assert not np.asarray(before.done).any() and np.asarray(end.truncated).all()
+    assert not np.allclose(np.asarray(end.task["goal"]), np.asarray(before.task["goal"]))
+    np.testing.assert_array_equal(np.asarray(end.task["targets_reached"]), 0.0)
+    np.testing.assert_array_equal(np.asarray(end.task["ctrl"]), np.asarray(end.data.qpos)[:, :16])
+    assert (np.asarray(end.episode_length) == 8).all()
+    again = _run(lambda _: matched, step, 0, 4, actions)
+    jax.tree.map(np.testing.assert_array_equal, states[-1], again[-1])
+
+
+def test_leap_cube_reorient_steps_as_mujoco_c_without_the_mjx_caps(x64):
+    """20 control steps of random actions from a reset state (nominal parameters, noise off, the
+    scene as MuJoCo C steps it): fastrl's qpos and observation against MuJoCo C with the same
+    servo targets and goal cube, observed through the scene's own sensors."""
+    env = envs.make("leap_cube_reorient", randomization=NOMINAL, observation_noise=0.0, mjx_caps=False)
+    step = jax.jit(env.step)
+    state = env.reset(jax.random.PRNGKey(5))
+    mj = mujoco.MjModel.from_xml_path(str(env.asset_path))
+    md = mujoco.MjData(mj)
+    md.qpos[:], md.qvel[:] = np.asarray(state.data.qpos), np.asarray(state.data.qvel)
+    md.mocap_pos[:] = mj.key("home").mpos.reshape(1, 3)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        action = rng.uniform(-1, 1, 16)
+        md.ctrl[:] = np.asarray(env._control(jnp.asarray(action), state.task))
+        md.mocap_quat[:] = np.asarray(state.task["goal"])[None]
+        state = step(state, jnp.asarray(action))
+        for _ in range(env.frame_skip):
+            mujoco.mj_step(mj, md)
+        np.testing.assert_allclose(np.asarray(state.data.qpos), md.qpos, atol=1e-9)
+        np.testing.assert_allclose(
+            np.asarray(state.obs), env.observation_from_mujoco(md, state.task), atol=1e-9
+        )
+    assert not bool(state.done) and md.ncon > 0
