@@ -70,7 +70,8 @@ def markdown(rows: list[dict]) -> str:
     lines = [
         "# Real-robot task throughput (control steps/s, this machine, one run)", "",
         f"Command: `{results.command()}`. fastrl: the full env step (physics, observation, reward, "
-        "auto-reset; float32) on one CPU device and split over 2 (one per core). MuJoCo C: "
+        "auto-reset; float32) on one CPU device and split over 2 (one per core), each scene stepped as "
+        "its env steps it (leap_cube_reorient with MJX's broad-phase caps, its default). MuJoCo C: "
         "`mujoco.rollout` with 2 threads on the same scene (float64, physics only), the servo targets "
         "of random actions.", "",
         "| env | scene | batch | physics steps per control step | fastrl | fastrl, 2 devices "

@@ -410,3 +410,29 @@ def test_first_minute_quick(tmp_path):
     assert cold["cache"] == "miss" and cached["cache"] == "hit"
     assert cold["tracing_s"] > 0 and cached["tracing_s"] == 0  # the traced program read back
     assert 0 < cold["first_line_s"] < cold["wall_s"] and cached["train_steps_per_s"] > 0
+
+
+def test_robot_training_reads_runs_and_interpolates_playgrounds_curve(tmp_path):
+    """``experiments.robot_training`` on a run folder as ``fastrl.train`` writes it: every
+    evaluation with its steps, wall time and eval metrics, Playground's return interpolated at
+    those steps (none past its last point or for a task without one)."""
+    from experiments import robot_training
+
+    assert robot_training.playground_at("humanoid_joystick", 5.4e6) == pytest.approx(2.35)
+    assert robot_training.playground_at("humanoid_joystick", 200e6) is None
+    assert robot_training.playground_at("panda_pick_cube", 1e6) is None
+    run = tmp_path / "run"
+    run.mkdir()
+    config = {"env": {"name": "humanoid_joystick"}, "seed": 0, "algo": {"num_envs": 1024}}
+    (run / "config.json").write_text(json.dumps(config))
+    header = "env_steps,wall_s,train/episode_return,perf/env_steps_per_s,perf/compile_s,"
+    header += "eval/episode_return,eval/episode_return_std,eval/episode_length,eval/success\n"
+    rows = ["20480,30.0,0.1,600.0,50.0,,,,", "10800000,900.0,4.0,1000.0,,5.0,1.0,300.0,0.25"]
+    (run / "metrics.csv").write_text(header + "\n".join(rows) + "\n")
+    out = robot_training.read_run(run)
+    assert out["compile_s"] == 50.0 and out["env_steps"] == 10_800_000 and out["train_return"] == 4.0
+    [e] = out["evals"]
+    assert (e["env_steps"], e["eval_return"], e["success"]) == (10_800_000, 5.0, 0.25)
+    assert e["playground_return"] == pytest.approx(4.7)
+    page = robot_training.markdown([out])
+    assert "| humanoid_joystick | 10,800,000 | 900 | 5.0 | 300 | success 0.25 | 4.7 |" in page

@@ -139,6 +139,8 @@ class Env:
     linesearch: str = "exact"
     # MJX's broad-phase caps (``physics.load_mjcf(mjx_caps=...)``), for scenes that set them
     mjx_caps: bool = False
+    # contact slots (``physics.load_mjcf(nconmax=...)``); None: the scene's or the loader's rule
+    nconmax: int | None = None
     # Whether gradients of the return through the physics are informative (smooth dynamics and
     # rewards); analytic policy gradients refuse envs without, explaining ``gradient_note``.
     smooth_gradients: bool = False
@@ -186,6 +188,8 @@ class Env:
             raise FileNotFoundError(f"{self.name}: asset {path} does not exist")
         self.asset_path = path  # the MJCF file the model was loaded from
         kw = {} if solver_iterations is None else {"solver_iterations": int(solver_iterations)}
+        if self.nconmax is not None:
+            kw["nconmax"] = self.nconmax
         model = physics.load_mjcf(
             path, integrator=integrator, linesearch=self.linesearch, mjx_caps=self.mjx_caps, **kw
         )

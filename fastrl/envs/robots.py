@@ -750,7 +750,8 @@ class LeapCubeReorient(RobotTask):
     ``targets_reached``: targets reached in the episode so far.
 
     Physics: with MJX's broad-phase caps as Playground's scene sets them by default (at most
-    12 colliding pairs and 30 contacts: ``mjx_caps=False`` steps the scene as MuJoCo C does).
+    12 colliding pairs and 30 contacts: ``mjx_caps=False`` steps the scene as MuJoCo C does, with
+    32 contact slots).
     Domain randomisation (on by default): friction +-20%, masses +-10%, servo gains +-10%.
     """
 
@@ -766,6 +767,7 @@ class LeapCubeReorient(RobotTask):
     gradient_note = "the cube moves only through contacts, whose gradients are zero or explosive"
     eval_metrics = ("targets_reached",)
     mjx_caps = True
+    uncapped_nconmax = 32
     action_scale = 0.5
     success_angle = 0.1
     noise = (0.05, 0.02, 0.1)  # joint angles, cube position, cube quaternion (normal)
@@ -775,6 +777,10 @@ class LeapCubeReorient(RobotTask):
         broad-phase caps (False: the scene as MuJoCo C steps it); other arguments as
         ``RobotTask``'s."""
         self.mjx_caps = bool(mjx_caps)
+        # without the caps: contact slots for the deepest 32 of its 2,888 candidate contacts
+        # (MuJoCo C keeps at most 14 at once under random actions: robot_scene_lean.md; the
+        # loader's rule, a quarter of the candidates, steps 4x slower for the same motion)
+        self.nconmax = None if self.mjx_caps else self.uncapped_nconmax
         super().__init__(**kwargs)
         self.observation_noise = float(observation_noise)
         mj = self._mujoco_model()
