@@ -462,7 +462,8 @@ class BerkeleyHumanoidJoystick(RobotTask):
 
     Observation (52): the IMU's linear velocity in its own frame, the gyro, gravity in the IMU
     frame, the command, joint angles minus the home pose, joint velocities, the last action, and
-    the cosine and sine of both feet's phases. Sensed parts carry Playground's uniform noise
+    the cosine and sine of both feet's phases (the command and clock the next step is scored
+    against; Playground's shows the ones before they advance). Sensed parts carry Playground's uniform noise
     (0.1, 0.2, 0.05, per joint 0.03-0.08, 1.5). (Playground's critic also reads noise-free
     privileged state; fastrl's PPO shares one observation between actor and critic.)
 
@@ -739,7 +740,9 @@ class LeapCubeReorient(RobotTask):
     Observation (57): joint angles, joint angles minus servo targets, palm minus cube position,
     the last two rows of the rotation from the target to the cube, and the last action, with
     Playground's noise (joint angles +-0.05, cube position +-0.02, the cube's quaternion plus
-    N(0, 0.1), renormalised). (Playground's critic also reads noise-free privileged state.)
+    N(0, 0.1), renormalised). It shows the target the next step is scored against (Playground's
+    shows the one before a success turns it). (Playground's critic also reads noise-free
+    privileged state.)
 
     Reward: Playground's terms and scales: ``orientation`` 5 tolerance(angle to target, 0.2,
     margin pi), ``position`` 0.5 tolerance(|palm - cube|, 0.02, margin 0.05),
