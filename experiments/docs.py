@@ -354,7 +354,21 @@ def _speed_rows() -> list[tuple[str, str, str, str]]:
         ("Humanoid at its training setting, equal or lower error", "MuJoCo C", humanoid, "speed_accuracy"),
         (f"Robot scenes at batch 1024 ({timed} timed)", "MuJoCo C `rollout`, 2 threads",
          f"{number(low, 2)}x to {number(high, 2)}x", "robot_coverage"),
+        robot_tasks_row(),
     ]  # fmt: skip
+
+
+def robot_tasks_row() -> tuple[str, str, str, str]:
+    """The robot tasks' full env step on one device against MuJoCo C's physics-only rollout."""
+    rows = load("robot_throughput")["rows"]
+    ratios = {r["env"]: r["control_steps_per_s"] / r["mujoco_rollout"]["control_steps_per_s"] for r in rows}
+    names = " / ".join(sorted(ratios))
+    return (
+        f"Robot tasks, full env step at batch 1024, 1 device: {names}",
+        "MuJoCo C `rollout` (physics only), 2 threads",
+        " / ".join(f"{number(ratios[k], 2)}x" for k in sorted(ratios)),
+        "robot_throughput",
+    )
 
 
 def _learning_rows() -> list[tuple[str, str, str, str]]:
