@@ -2,7 +2,7 @@
 
 from fastrl.devices import batch_mesh, over_devices
 from fastrl.envs.base import Env, Randomization, State
-from fastrl.envs.registry import make, names, register
+from fastrl.envs.registry import env_class, make, names, register
 
 _GYMNASIUM_ADAPTER = ("GymEnv", "VectorEnv", "make_gym", "make_vec")
 
@@ -25,6 +25,7 @@ __all__ = [
     "State",
     "VectorEnv",
     "batch_mesh",
+    "env_class",
     "make",
     "make_gym",
     "make_vec",

@@ -45,14 +45,22 @@ def names() -> list[str]:
     return sorted(_REGISTRY)
 
 
+def env_class(name: str) -> type[Env]:
+    """The ``Env`` class registered as ``name``.
+
+    Raises:
+      ValueError: for an unknown name, listing the registered ones.
+    """
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown environment {name!r}; choose one of: {', '.join(names())}") from None
+
+
 def make(name: str, **overrides) -> Env:
     """Builds the environment ``name``; keyword overrides go to its constructor.
 
     Raises:
       ValueError: for an unknown name, listing the registered ones.
     """
-    try:
-        cls = _REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown environment {name!r}; choose one of: {', '.join(names())}") from None
-    return cls(**overrides)
+    return env_class(name)(**overrides)

@@ -197,7 +197,9 @@ def cpu_devices(rc: RunConfig, cores: int) -> int:
     ``scale.learner_splits``) get one device per core, as many as divide the env batch and the
     minibatch; others, and agent batches, keep one device (XLA's automatic layout ran PPO's
     gradients in full on each device, so it would not be faster). ``FASTRL_CPU_DEVICES=N``
-    overrides, and an ``XLA_FLAGS`` that sets the device count is left alone.
+    overrides, and an ``XLA_FLAGS`` that sets the device count is left alone. Envs whose step
+    runs slower split than on one device (``Env.splits_over_devices``: three of the robot tasks,
+    measured in ``robot_throughput.md``) keep one device.
     """
     if "FASTRL_CPU_DEVICES" in os.environ:
         value = os.environ["FASTRL_CPU_DEVICES"]
@@ -205,6 +207,10 @@ def cpu_devices(rc: RunConfig, cores: int) -> int:
             raise ConfigError(f"FASTRL_CPU_DEVICES={value!r} should be a positive integer")
         return int(value)
     if rc.train.num_seeds > 1 or rc.train.vmap_sweep or not agents.splits_over_devices(rc.algo_name):
+        return 1
+    from fastrl.envs import env_class
+
+    if not env_class(rc.env.name).splits_over_devices:
         return 1
     n = max(1, cores)
     while n > 1 and not agents.splits_evenly(rc.algo_name, rc.algo, n):

@@ -293,6 +293,9 @@ def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
     assert train.cpu_devices(typed(["env=inverted_pendulum", "algo=sac"]), 2) == 1
     seeds = typed(["env=inverted_pendulum", "algo=ppo", "train.num_seeds=2"])
     assert train.cpu_devices(seeds, 2) == 1  # agent batches keep one device
+    # robot tasks whose step runs slower split keep one device; the Go1's splits
+    assert train.cpu_devices(typed(["env=humanoid_joystick", "algo=ppo"]), 2) == 1
+    assert train.cpu_devices(typed(["env=go1_joystick", "algo=ppo"]), 2) == 2
     monkeypatch.setenv("FASTRL_CPU_DEVICES", "1")
     assert train.cpu_devices(ppo, 2) == 1
     monkeypatch.setenv("FASTRL_CPU_DEVICES", "two")
