@@ -124,11 +124,13 @@ def main() -> None:
     )
     parser.add_argument("run_dirs", nargs="+", type=pathlib.Path)
     parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS, help="results folder")
+    parser.add_argument("--note", default="", help="a sentence on the runs, shown under the tables")
     args = parser.parse_args()
     runs = [read_run(d) for d in args.run_dirs]
-    meta = {"machine": results.machine(), "date": results.today()}
-    results.save(args.out, "robot_training", {"meta": meta, "runs": runs}, markdown(runs))
-    print(markdown(runs))
+    meta = {"machine": results.machine(), "date": results.today(), "note": args.note}
+    page = markdown(runs) + (f"\n\n{args.note}" if args.note else "")
+    results.save(args.out, "robot_training", {"meta": meta, "runs": runs}, page)
+    print(page)
 
 
 if __name__ == "__main__":
