@@ -843,7 +843,7 @@ class LeapCubeReorient(RobotTask):
         }
 
     def markers(self, task):
-        """The target: the cube's resting spot above the palm's keyframe goal position."""
+        """Where the goal cube (a mocap body turned to the target orientation) stands."""
         return self._mocap_pos[None]
 
     def _control(self, action, task):
