@@ -1,7 +1,7 @@
 """The real-robot tasks (fastrl/envs/robots.py): API, auto-reset, determinism, MuJoCo C agreement.
 
-One env per module, each program compiled once (module-scoped fixtures): the Go1 scene's step
-takes ~30 s to compile on one core.
+Each env's batched reset and step compile once for the module (module-scoped fixtures): a robot
+scene's step takes ~20-30 s to compile on one core.
 """
 
 from __future__ import annotations
