@@ -54,6 +54,19 @@ class RobotTask(Env):
         vel = data.cvel[body]
         return vel[..., 3:] + cross(vel[..., :3], point - data.subtree_com[root])
 
+    def _marker(self, data, command):
+        """A joystick task's viewer marker: where the commanded planar velocity would carry the
+        trunk (``self._trunk``) in half a second, 0.3 m above it."""
+        heading = data.xmat[self._trunk][:, 0] * jnp.array([1.0, 1.0, 0.0], data.xmat.dtype)
+        heading = heading / jnp.maximum(jnp.linalg.norm(heading), 1e-9)
+        side = jnp.stack([-heading[1], heading[0], 0.0 * heading[2]])
+        lift = jnp.array([0.0, 0.0, 0.3], data.xmat.dtype)
+        return data.xpos[self._trunk] + 0.5 * (command[0] * heading + command[1] * side) + lift
+
+    def markers(self, task):
+        """The task's ``marker`` (joystick tasks); other tasks override this."""
+        return task["marker"][None]
+
     @property
     def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """[-1, 1] per actuator: an action is an offset in units of ``action_scale``, not a servo
@@ -180,18 +193,6 @@ class Go1Joystick(RobotTask):
             "noise": self._noise(k3, dtype),
             "marker": self._marker(data, command),
         }
-
-    def _marker(self, data, command):
-        """A point the viewer marks: where the commanded planar velocity would carry the trunk in
-        half a second, 0.3 m above it."""
-        heading = data.xmat[self._trunk][:, 0] * jnp.array([1.0, 1.0, 0.0], data.xmat.dtype)
-        heading = heading / jnp.maximum(jnp.linalg.norm(heading), 1e-9)
-        side = jnp.stack([-heading[1], heading[0], 0.0 * heading[2]])
-        lift = jnp.array([0.0, 0.0, 0.3], data.xmat.dtype)
-        return data.xpos[self._trunk] + 0.5 * (command[0] * heading + command[1] * side) + lift
-
-    def markers(self, task):
-        return task["marker"][None]
 
     def _noise(self, key, dtype):
         scale = jnp.repeat(
@@ -590,18 +591,6 @@ class BerkeleyHumanoidJoystick(RobotTask):
             "noise": self._noise(k4, dtype),
             "marker": self._marker(data, command),
         }
-
-    def _marker(self, data, command):
-        """Where the commanded planar velocity would carry the trunk in half a second, 0.3 m
-        above it (for the viewer)."""
-        heading = data.xmat[self._trunk][:, 0] * jnp.array([1.0, 1.0, 0.0], data.xmat.dtype)
-        heading = heading / jnp.maximum(jnp.linalg.norm(heading), 1e-9)
-        side = jnp.stack([-heading[1], heading[0], 0.0 * heading[2]])
-        lift = jnp.array([0.0, 0.0, 0.3], data.xmat.dtype)
-        return data.xpos[self._trunk] + 0.5 * (command[0] * heading + command[1] * side) + lift
-
-    def markers(self, task):
-        return task["marker"][None]
 
     def _noise(self, key, dtype):
         scale = jnp.concatenate([
