@@ -21,7 +21,7 @@ import jax
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from fastrl import agents, compile_cache, xla_flags
+from fastrl import agents, compile_cache, envs, xla_flags
 from fastrl.training import runner
 from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError
 from fastrl.training.config import ConfigError, RunConfig, identity_diff
@@ -208,9 +208,7 @@ def cpu_devices(rc: RunConfig, cores: int) -> int:
         return int(value)
     if rc.train.num_seeds > 1 or rc.train.vmap_sweep or not agents.splits_over_devices(rc.algo_name):
         return 1
-    from fastrl.envs import env_class
-
-    if not env_class(rc.env.name).splits_over_devices:
+    if not envs.env_class(rc.env.name).splits_over_devices:
         return 1
     n = max(1, cores)
     while n > 1 and not agents.splits_evenly(rc.algo_name, rc.algo, n):
