@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import pathlib
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -37,35 +38,59 @@ from fastrl.training.config import RunConfig
 NOMINAL = {"friction": 0.0, "mass": 0.0, "gain": 0.0, "damping": 0.0}
 
 
-def nominal_env(policy):
-    """The run's env with domain randomisation off (and no observation noise where it has some)."""
+def nominal_env(policy, episode_length: int | None = None, **options):
+    """The run's env with domain randomisation and observation noise off, and ``options`` (e.g.
+    a held ``command``) over its own; ``episode_length`` (None: the run's)."""
     config = RunConfig.from_dict(policy.run_config).env
-    options = dict(config.options)
-    if "observation_noise" in options:
-        options["observation_noise"] = 0.0
-    return dataclasses.replace(config, randomization=NOMINAL, options=options).make()
+    config = dataclasses.replace(
+        config, randomization=NOMINAL, options={**config.options, **options},
+        episode_length=episode_length or config.episode_length,
+    )  # fmt: skip
+    env = config.make()
+    if getattr(env, "observation_noise", 0.0):
+        env = dataclasses.replace(config, options={**config.options, "observation_noise": 0.0}).make()
+    return env
 
 
-def in_fastrl(env, policy, episodes: int, steps: int, seed: int):
-    """Episodes of ``steps`` control steps (or to termination): returns, the eval metrics at each
-    episode's last step, and the starts (reset states) for MuJoCo C."""
+class Episodes(NamedTuple):
+    """What episodes in one simulator gave: each episode's return (E,), each of the env's
+    ``eval_metrics`` at its last step, and each of its step metrics (``State.metrics``: reward
+    terms, motion) averaged over its steps from ``skip`` on while the episode lasted."""
+
+    returns: np.ndarray
+    last: dict
+    means: dict
+
+
+def _mean(total, count):
+    return {k: np.asarray(v) / np.maximum(np.asarray(count), 1) for k, v in total.items()}
+
+
+def in_fastrl(env, policy, episodes: int, steps: int, seed: int, skip: int = 0):
+    """Episodes of ``steps`` control steps (or to their end) from the resets of ``seed``:
+    ``Episodes``, and the starts (reset states) for MuJoCo C."""
     start = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(seed), episodes))
 
-    def body(carry, _):
-        state, alive, ret, last = carry
+    def body(carry, t):
+        state, alive, ret, last, total, count = carry
         state = jax.vmap(env.step)(state, policy(state.obs))
         ret = ret + jnp.where(alive, state.reward, 0.0)
         last = {k: jnp.where(alive, state.metrics[k], v) for k, v in last.items()}
-        return (state, alive & ~state.terminated, ret, last), None
+        on = alive & (t >= skip)
+        total = {k: v + jnp.where(on, state.metrics[k], 0.0) for k, v in total.items()}
+        return (state, alive & ~state.done, ret, last, total, count + on), None
 
     names = tuple(getattr(env, "eval_metrics", ()))
     zero = jnp.zeros(episodes, start.obs.dtype)
-    init = (start, jnp.ones(episodes, bool), zero, {k: zero for k in names})
-    (_, _, ret, last), _ = jax.jit(lambda c: jax.lax.scan(body, c, None, length=steps))(init)
-    return np.asarray(ret), {k: np.asarray(v) for k, v in last.items()}, start
+    init = (start, jnp.ones(episodes, bool), zero, {k: zero for k in names},
+            {k: zero for k in start.metrics}, zero)  # fmt: skip
+    scan = jax.jit(lambda c: jax.lax.scan(body, c, jnp.arange(steps)))
+    (_, _, ret, last, total, count), _ = scan(init)
+    out = Episodes(np.asarray(ret), {k: np.asarray(v) for k, v in last.items()}, _mean(total, count))
+    return out, start
 
 
-def in_mujoco(env, policy, start, steps: int, seed: int):
+def in_mujoco(env, policy, start, steps: int, seed: int, skip: int = 0) -> Episodes:
     """The same episodes in MuJoCo C from ``start``'s states and tasks."""
     mj = mujoco.MjModel.from_xml_path(str(env.asset_path))
     names = tuple(getattr(env, "eval_metrics", ()))
@@ -76,7 +101,8 @@ def in_mujoco(env, policy, start, steps: int, seed: int):
         def score(before, qpos, qvel, ctrl, action, task, key):
             after = physics.forward(model, physics.make_data(model, qpos=qpos, qvel=qvel, ctrl=ctrl))
             terms, terminated, extra, task = env._reward_task(model, before, after, action, task, key)
-            return after, sum(terms.values()), terminated, {k: extra[k] for k in names}, task
+            metrics = {**{f"reward_{k}": v for k, v in terms.items()}, **extra}
+            return after, sum(terms.values()), terminated, metrics, task
 
         first = jax.jit(
             lambda qpos, qvel: physics.forward(model, physics.make_data(model, qpos=qpos, qvel=qvel))
@@ -88,15 +114,15 @@ def in_mujoco(env, policy, start, steps: int, seed: int):
             return data.qvel, data.mocap_pos, data.mocap_quat
 
         act = jax.jit(policy)
-        returns, metrics = [], {k: [] for k in names}
+        returns, lasts, totals, counts = [], [], [], []
         for i in range(start.obs.shape[0]):
             task = jax.tree.map(lambda x, i=i: jnp.asarray(np.asarray(x[i])), start.task)
             md = mujoco.MjData(mj)
             md.qpos[:], md.qvel[:] = np.asarray(start.data.qpos[i]), np.asarray(start.data.qvel[i])
             mujoco.mj_forward(mj, md)
             before = first(md.qpos.copy(), md.qvel.copy())
-            ret, last = 0.0, {}
-            for t in range(steps):
+            ret, metrics, total, count = 0.0, {}, {}, 0
+            for t in range(min(steps, env.episode_length)):
                 obs = env.observation_from_mujoco(md, task)
                 action = jnp.asarray(act(jnp.asarray(obs, jnp.float32)), jnp.float64)
                 ctrl = np.asarray(env._control(action, task))
@@ -108,30 +134,35 @@ def in_mujoco(env, policy, start, steps: int, seed: int):
                 for _ in range(env.frame_skip):
                     mujoco.mj_step(mj, md)
                 key = jax.random.fold_in(jax.random.PRNGKey(seed), i * 100_003 + t)
-                before, reward, terminated, last, task = score(
+                before, reward, terminated, metrics, task = score(
                     before, md.qpos.copy(), md.qvel.copy(), ctrl, action, task, key
                 )
                 ret += float(reward)
+                total = {k: total.get(k, 0.0) + float(v) * (t >= skip) for k, v in metrics.items()}
+                count += t >= skip
                 if bool(terminated):
                     break
             returns.append(ret)
-            for k in names:
-                metrics[k].append(float(last[k]))
-    return np.asarray(returns), {k: np.asarray(v) for k, v in metrics.items()}
+            lasts.append({k: float(metrics[k]) for k in names})
+            totals.append(total)
+            counts.append(count)
+    stack = lambda rows, keys: {k: np.asarray([r.get(k, 0.0) for r in rows]) for k in keys}  # noqa: E731
+    keys = sorted({k for t in totals for k in t})
+    return Episodes(np.asarray(returns), stack(lasts, names), _mean(stack(totals, keys), counts))
 
 
 def measure(run_dir: str, episodes: int, steps: int | None, seed: int = 0) -> dict:
     policy = fastrl.load_policy(run_dir)
     env = nominal_env(policy)
     steps = steps or env.episode_length
-    ret, last, start = in_fastrl(env, policy, episodes, steps, seed)
-    mj_ret, mj_last = in_mujoco(env, policy, start, steps, seed)
-    side = lambda r, m: {"return": float(r.mean()), "return_std": float(r.std()),  # noqa: E731
-                         **{k: float(v.mean()) for k, v in m.items()}}  # fmt: skip
+    ours, start = in_fastrl(env, policy, episodes, steps, seed)
+    theirs = in_mujoco(env, policy, start, steps, seed)
+    side = lambda e: {"return": float(e.returns.mean()), "return_std": float(e.returns.std()),  # noqa: E731
+                      **{k: float(v.mean()) for k, v in e.last.items()}}  # fmt: skip
     row = {"env": env.name, "run_dir": str(run_dir), "episodes": episodes, "steps": steps,
-           "fastrl": side(ret, last), "mujoco": side(mj_ret, mj_last)}  # fmt: skip
+           "fastrl": side(ours), "mujoco": side(theirs)}  # fmt: skip
     row["kept"] = {k: (row["mujoco"][k] / row["fastrl"][k] if row["fastrl"][k] else None)
-                   for k in ("return", *last)}  # fmt: skip
+                   for k in ("return", *ours.last)}  # fmt: skip
     return row
 
 

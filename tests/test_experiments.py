@@ -372,20 +372,22 @@ def test_hfield_contacts_quick(tmp_path):
 
 
 @pytest.mark.slow  # compiles the Go1 scene for training and for the measurement (~2 min)
-def test_go1_commands_quick(tmp_path):
+def test_joystick_commands_quick(tmp_path):
     """A tiny go1_joystick run, then its policy under held commands in fastrl and MuJoCo C: the
     measurement runs end to end, and the two simulators agree on what the policy does."""
     run_dir = tmp_path / "run"
     train = [sys.executable, "-m", "fastrl.train", "env=go1_joystick", "algo=ppo", "debug=quick",
              "logger=quiet", f"hydra.run.dir={run_dir}"]  # fmt: skip
     subprocess.run(train, check=True, cwd=ROOT, timeout=900)
-    cmd = _module("go1_commands", str(run_dir), "--quick", "--out", str(tmp_path))
+    cmd = _module("joystick_commands", str(run_dir), "--quick", "--out", str(tmp_path))
     subprocess.run(cmd, check=True, cwd=ROOT, timeout=900)
-    rows = json.loads((tmp_path / "go1_commands_quick.json").read_text())["rows"]
+    rows = json.loads((tmp_path / "commands_go1_joystick_quick.json").read_text())["rows"]
     assert [r["command"] for r in rows] == [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
+    assert [round(r["standing_still"], 2) for r in rows] == [1.5, 0.52]
     for r in rows:
-        assert 0 <= r["fastrl_score"] <= 1.5 and 0 <= r["mujoco_score"] <= 1.5
-        assert abs(r["fastrl_score"] - r["mujoco_score"]) < 0.2  # same policy, same starts, 1.5 s
+        ours, theirs = r["fastrl"], r["mujoco"]
+        assert 0 <= ours["score"] <= 1.5 and 0 <= theirs["score"] <= 1.5
+        assert abs(ours["score"] - theirs["score"]) < 0.2  # same policy, same starts, 1.5 s
 
 
 @pytest.mark.slow  # compiles the Panda scene for training and for both simulators (~3 min)

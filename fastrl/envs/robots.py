@@ -54,19 +54,6 @@ class RobotTask(Env):
         vel = data.cvel[body]
         return vel[..., 3:] + cross(vel[..., :3], point - data.subtree_com[root])
 
-    def _marker(self, data, command):
-        """A joystick task's viewer marker: where the commanded planar velocity would carry the
-        trunk (``self._trunk``) in half a second, 0.3 m above it."""
-        heading = data.xmat[self._trunk][:, 0] * jnp.array([1.0, 1.0, 0.0], data.xmat.dtype)
-        heading = heading / jnp.maximum(jnp.linalg.norm(heading), 1e-9)
-        side = jnp.stack([-heading[1], heading[0], 0.0 * heading[2]])
-        lift = jnp.array([0.0, 0.0, 0.3], data.xmat.dtype)
-        return data.xpos[self._trunk] + 0.5 * (command[0] * heading + command[1] * side) + lift
-
-    def markers(self, task):
-        """The task's ``marker`` (joystick tasks); other tasks override this."""
-        return task["marker"][None]
-
     @property
     def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """[-1, 1] per actuator: an action is an offset in units of ``action_scale``, not a servo
@@ -77,7 +64,64 @@ class RobotTask(Env):
         return -one, one.copy()
 
 
-class Go1Joystick(RobotTask):
+class JoystickTask(RobotTask):
+    """A legged robot following a commanded planar velocity (forward m/s, sideways m/s, yaw
+    rad/s), drawn at reset (each task's ``_draw_command``) and redrawn during the episode by
+    each task's schedule.
+
+    ``command=(forward, sideways, yaw)`` holds that command instead, at every reset and for the
+    whole episode (``env.options.command=[0.5,0,0]``): to evaluate a policy under a chosen
+    command, or to drive it in the viewer. ``observation_noise`` scales the observation noise
+    (0: none)."""
+
+    def __init__(self, *, command=None, observation_noise: float = 1.0, **kwargs):
+        """Arguments as ``RobotTask``'s, and ``command`` and ``observation_noise`` above."""
+        super().__init__(**kwargs)
+        self.observation_noise = float(observation_noise)
+        if command is not None:
+            command = tuple(float(c) for c in command)
+            if len(command) != 3 or not all(np.isfinite(command)):
+                raise ValueError(
+                    f"{self.name}: command={command!r} should be three finite numbers (forward "
+                    "m/s, sideways m/s, yaw rad/s)"
+                )
+        self.command = command
+
+    def _first_command(self, key, dtype):
+        """The command at reset: a draw, or the held ``command``."""
+        if self.command is None:
+            return self._draw_command(key, dtype)
+        return jnp.asarray(self.command, dtype)
+
+    def _next_command(self, redrawn, command):
+        """The next step's command: the task's redraw, unless the command is held."""
+        return redrawn if self.command is None else command
+
+    @staticmethod
+    def _motion(command, local, gyro, fell):
+        """The step's metrics of motion: commanded and achieved planar speed, the achieved
+        velocity the tracking terms score (the IMU's, in its own frame, and the yaw rate) and
+        whether the robot fell."""
+        return {
+            "command_speed": jnp.linalg.norm(command[:2]), "speed": jnp.linalg.norm(local[:2]),
+            "forward_velocity": local[0], "sideways_velocity": local[1], "yaw_rate": gyro[2],
+            "fell": fell.astype(local.dtype),
+        }  # fmt: skip
+
+    def _marker(self, data, command):
+        """The viewer marker: where the commanded planar velocity would carry the
+        trunk (``self._trunk``) in half a second, 0.3 m above it."""
+        heading = data.xmat[self._trunk][:, 0] * jnp.array([1.0, 1.0, 0.0], data.xmat.dtype)
+        heading = heading / jnp.maximum(jnp.linalg.norm(heading), 1e-9)
+        side = jnp.stack([-heading[1], heading[0], 0.0 * heading[2]])
+        lift = jnp.array([0.0, 0.0, 0.3], data.xmat.dtype)
+        return data.xpos[self._trunk] + 0.5 * (command[0] * heading + command[1] * side) + lift
+
+    def markers(self, task):
+        return task["marker"][None]
+
+
+class Go1Joystick(JoystickTask):
     """Unitree Go1 follows a commanded velocity on flat ground (``env=go1_joystick``).
 
     Playground's ``Go1JoystickFlatTerrain``: the feet-only scene (only the four foot spheres
@@ -138,11 +182,9 @@ class Go1Joystick(RobotTask):
     noise = (0.1, 0.2, 0.05, 0.03, 1.5)  # linvel, gyro, gravity, joint angles, joint velocities
     feet = ("FR", "FL", "RR", "RL")
 
-    def __init__(self, *, observation_noise: float = 1.0, **kwargs):
-        """``observation_noise`` scales the observation noise (0: none); other arguments as
-        ``RobotTask``'s."""
+    def __init__(self, **kwargs):
+        """Arguments as ``JoystickTask``'s."""
         super().__init__(**kwargs)
-        self.observation_noise = float(observation_noise)
         mj = self._mujoco_model()
         key = mj.key("home")
         self._home_qpos = np.asarray(key.qpos, np.float64)
@@ -182,7 +224,7 @@ class Go1Joystick(RobotTask):
     def _sample_task(self, key, model, data):
         k1, k2, k3 = jax.random.split(key, 3)
         dtype = data.qpos.dtype
-        command = self._draw_command(k1, dtype)
+        command = self._first_command(k1, dtype)
         return {
             "command": command,
             "resample_in": self._steps_to_resample(k2),
@@ -282,7 +324,7 @@ class Go1Joystick(RobotTask):
         keep = jax.random.bernoulli(k_keep, 0.5, (3,))
         on = jax.random.bernoulli(k_on, jnp.asarray(self.command_nonzero, q.dtype))
         fresh = self._draw_command(k_cmd, q.dtype) * on
-        next_command = jnp.where(due & ~keep, fresh, command)
+        next_command = self._next_command(jnp.where(due & ~keep, fresh, command), command)
         task = {
             "command": next_command,
             "resample_in": jnp.where(due, self._steps_to_resample(k_time), task["resample_in"] - 1),
@@ -293,9 +335,7 @@ class Go1Joystick(RobotTask):
             "noise": self._noise(k_noise, q.dtype),
             "marker": self._marker(after, next_command),
         }
-        speed = jnp.linalg.norm(local[:2])
-        extra = {"command_speed": jnp.linalg.norm(command[:2]), "speed": speed, "fell": fell.astype(q.dtype)}
-        return terms, fell, extra, task
+        return terms, fell, self._motion(command, local, gyro, fell), task
 
 
 class PandaPickCube(RobotTask):
@@ -447,7 +487,7 @@ class PandaPickCube(RobotTask):
         return terms, out, extra, task
 
 
-class BerkeleyHumanoidJoystick(RobotTask):
+class BerkeleyHumanoidJoystick(JoystickTask):
     """The Berkeley Humanoid follows a commanded velocity on flat ground
     (``env=humanoid_joystick``).
 
@@ -520,11 +560,9 @@ class BerkeleyHumanoidJoystick(RobotTask):
     pose_weights = (1.0, 1.0, 0.01, 0.01, 1.0, 1.0) * 2
     feet = ("l_foot", "r_foot")  # sites; their floor-touching geoms are l_foot1 and r_foot1
 
-    def __init__(self, *, observation_noise: float = 1.0, pushes: bool = True, **kwargs):
-        """``observation_noise`` scales the observation noise (0: none); ``pushes`` turns the
-        kicks on or off; other arguments as ``RobotTask``'s."""
+    def __init__(self, *, pushes: bool = True, **kwargs):
+        """``pushes`` turns the kicks on or off; other arguments as ``JoystickTask``'s."""
         super().__init__(**kwargs)
-        self.observation_noise = float(observation_noise)
         self.pushes = bool(pushes)
         mj = self._mujoco_model()
         key = mj.key("home")
@@ -573,7 +611,7 @@ class BerkeleyHumanoidJoystick(RobotTask):
     def _sample_task(self, key, model, data):
         k1, k2, k3, k4 = jax.random.split(key, 4)
         dtype = data.qpos.dtype
-        command = self._draw_command(k1, dtype)
+        command = self._first_command(k1, dtype)
         hz = jax.random.uniform(k2, (), dtype, *self.gait_hz)
         seconds = jax.random.uniform(k3, (), dtype, *self.push_seconds)
         interval = jnp.round(seconds / self.dt).astype(jnp.int32)
@@ -688,7 +726,7 @@ class BerkeleyHumanoidJoystick(RobotTask):
         k_cmd, k_push, k_noise = jax.random.split(key, 3)
         step = task["step"] + 1
         due = step > self.resample_steps
-        next_command = jnp.where(due, self._draw_command(k_cmd, dtype), command)
+        next_command = self._next_command(jnp.where(due, self._draw_command(k_cmd, dtype), command), command)
         phase = jnp.fmod(task["phase"] + task["phase_dt"] + jnp.pi, 2 * jnp.pi) - jnp.pi
         task = {
             **task,
@@ -703,11 +741,7 @@ class BerkeleyHumanoidJoystick(RobotTask):
             "noise": self._noise(k_noise, dtype),
             "marker": self._marker(after, next_command),
         }
-        extra = {
-            "command_speed": jnp.linalg.norm(command[:2]), "speed": jnp.linalg.norm(local[:2]),
-            "fell": fell.astype(dtype),
-        }  # fmt: skip
-        return terms, fell, extra, task
+        return terms, fell, self._motion(command, local, gyro, fell), task
 
 
 def _tolerance(x, upper, margin):

@@ -92,6 +92,37 @@ def test_go1_joystick_auto_resets_to_fresh_commands_and_is_deterministic(go1):
     assert not np.allclose(np.asarray(end.data.qpos), np.asarray(start.data.qpos))  # a new draw
 
 
+def test_a_held_command_survives_resets_and_due_redraws():
+    """``command=`` holds one command at every reset and through the task's redraws (which go
+    on without it); the motion metrics report what the tracking terms score."""
+    held, free = (envs.make("go1_joystick", command=c) for c in ((0.5, 0.0, -0.25), None))
+    keys = jax.random.split(jax.random.PRNGKey(1), 3)
+
+    @jax.jit
+    def redraw_due(keys):  # a reset, then the task's update on a step where a redraw is due
+        def one(env):
+            def per(key):
+                state = env.reset(key)
+                task = dict(state.task, resample_in=jnp.ones((), jnp.int32))
+                action = jnp.zeros(env.action_size)
+                d = state.data
+                _, _, extra, nxt = env._reward_task(env.model, d, d, action, task, jax.random.fold_in(key, 5))
+                return state.task["command"], nxt["command"], extra
+
+            return jax.vmap(per)(keys)
+
+        return one(held), one(free)
+
+    (h0, h1, extra), (f0, f1, _) = redraw_due(keys)
+    np.testing.assert_allclose(np.asarray(h0), [[0.5, 0.0, -0.25]] * 3, rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(h1), np.asarray(h0))
+    assert np.ptp(np.asarray(f0), axis=0).min() > 0  # without it: drawn per reset
+    assert not np.allclose(np.asarray(f1), np.asarray(f0))  # and redrawn when due
+    assert {"forward_velocity", "sideways_velocity", "yaw_rate"} <= set(extra)
+    with pytest.raises(ValueError, match="three finite numbers"):
+        envs.make("go1_joystick", command=(1.0, 0.0))
+
+
 def test_go1_joystick_steps_as_mujoco_c_and_observes_its_sensors(x64):
     """20 control steps of random actions from a reset state: fastrl's qpos and observation
     (noise off, nominal parameters) against MuJoCo C stepping the same scene with the same
