@@ -57,11 +57,40 @@ def _pack(tree: Any) -> dict[str, Any]:
 
 
 def _unpack(packed: dict[str, Any], like: Any) -> Any:
+    """``like``'s tree from the packed leaves; a leaf absent from them (zero-size, or a step
+    metric the saving version lacked: ``_match_saved``) is zeros."""
     leaves, treedef = jax.tree_util.tree_flatten_with_path(like)
-    out = [
-        packed[jax.tree_util.keystr(path)] if x.size else jnp.zeros(x.shape, x.dtype) for path, x in leaves
-    ]
+    out = []
+    for path, x in leaves:
+        key = jax.tree_util.keystr(path)
+        out.append(packed[key] if x.size and key in packed else jnp.zeros(x.shape, x.dtype))
     return jax.tree_util.tree_unflatten(treedef, out)
+
+
+# Leaves that every env step overwrites before anything reads them (per-step diagnostics): a
+# checkpoint saved before an env gained or lost one still restores.
+_STEP_METRICS = ".env_state.metrics["
+
+
+def _match_saved(target: dict[str, Any], saved: dict[str, Any] | None, where: Path) -> dict[str, Any]:
+    """``target`` fitted to the leaves a checkpoint holds (``saved``: key -> metadata; None when
+    unknown). A step metric that this version adds is left out (restored as zeros), one that it
+    dropped is read and then discarded; any other difference is an error that names it."""
+    if saved is None:
+        return target
+    metric = lambda key: _STEP_METRICS in key  # noqa: E731
+    missing = [k for k in target if k not in saved]
+    extra = [k for k in saved if k not in target]
+    other = [k for k in missing + extra if not metric(k)]
+    if other:
+        raise UnreadableCheckpoint(
+            f"checkpoint {where} holds other state than this fastrl version's learner (saved by an "
+            f"incompatible version?): {', '.join(other[:6])}{' ...' if len(other) > 6 else ''}"
+        )
+    default = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    out = {k: v for k, v in target.items() if k in saved}
+    out.update({k: jax.ShapeDtypeStruct(saved[k].shape, saved[k].dtype, sharding=default) for k in extra})
+    return out
 
 
 def _target(abstract: Any) -> dict[str, jax.ShapeDtypeStruct]:
@@ -170,7 +199,7 @@ class Checkpointer:
                 "resume with the same env/algo/network/seed settings, or start a new run. Differences "
                 "(saved -> now):\n  " + "\n  ".join(diffs)
             )
-        target = _target(abstract_state)
+        target = _match_saved(_target(abstract_state), self._saved_leaves(step), self.directory / str(step))
         try:
             out = self._manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(target)))
         except Exception as e:
@@ -179,6 +208,15 @@ class Checkpointer:
                 f"saved by an incompatible fastrl version): {type(e).__name__}: {_first_line(e)}"
             ) from None
         return _unpack(out["state"], abstract_state), meta
+
+    def _saved_leaves(self, step: int) -> dict[str, Any] | None:
+        """The state leaves saved at ``step`` (key -> orbax's array metadata), or None when the
+        metadata cannot be read (the restore then reports what is wrong)."""
+        try:
+            tree = ocp.StandardCheckpointer().metadata(self.directory / str(step) / "state").item_metadata
+            return dict(tree)
+        except Exception:
+            return None
 
     def _require_step(self, step: int | None) -> int:
         if step is None:

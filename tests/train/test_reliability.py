@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -293,3 +294,38 @@ def test_the_cached_program_key_follows_what_builds_the_program(tmp_path):
         assert not read and len(calls) == 2
     finally:
         jax.config.update("jax_compilation_cache_dir", str(Path(__file__).parents[2] / ".jax_cache"))
+
+
+class _Env(NamedTuple):
+    metrics: dict
+    obs: jax.Array
+
+
+class _Saved(NamedTuple):
+    params: dict
+    env_state: _Env
+
+
+def test_a_checkpoint_saved_before_an_env_gained_or_lost_a_step_metric_still_restores(tmp_path):
+    """Step metrics are overwritten by every env step, so a policy saved by an older version (an
+    env since given a new metric, or rid of one) still loads; any other difference is an error
+    that names the leaf."""
+    from fastrl.training.checkpoint import Checkpointer
+
+    config = {"env": {"name": "toy"}, "train": {"num_seeds": 1, "vmap_sweep": None}}
+    saved = _Saved({"w": jnp.arange(3.0)}, _Env({"speed": jnp.ones(4), "old": jnp.ones(4)}, jnp.ones((4, 2))))
+    ckpt = Checkpointer(tmp_path / "checkpoints")
+    try:
+        ckpt.save(1, saved, {"config": config, "env_steps": 0})
+        now = _Saved(saved.params, _Env({"speed": jnp.zeros(4), "new": jnp.zeros(4)}, jnp.zeros((4, 2))))
+        state, _ = ckpt.restore(jax.eval_shape(lambda: now), config, 1)
+        np.testing.assert_array_equal(state.params["w"], [0.0, 1.0, 2.0])
+        np.testing.assert_array_equal(state.env_state.obs, 1.0)
+        assert set(state.env_state.metrics) == {"speed", "new"}
+        np.testing.assert_array_equal(state.env_state.metrics["speed"], 1.0)
+        np.testing.assert_array_equal(state.env_state.metrics["new"], 0.0)
+        other = _Saved({"w": jnp.zeros(3), "b": jnp.zeros(2)}, now.env_state)
+        with pytest.raises(CheckpointError, match=r"other state .*\['b'\]"):
+            ckpt.restore(jax.eval_shape(lambda: other), config, 1)
+    finally:
+        ckpt.close()
