@@ -212,11 +212,16 @@ class Checkpointer:
     def _saved_leaves(self, step: int) -> dict[str, Any] | None:
         """The state leaves saved at ``step`` (key -> orbax's array metadata), or None when the
         metadata cannot be read (the restore then reports what is wrong)."""
+        absl = logging.getLogger("absl")
+        level = absl.level
+        absl.setLevel(logging.ERROR)  # orbax warns that the item has no step metadata of its own
         try:
             tree = ocp.StandardCheckpointer().metadata(self.directory / str(step) / "state").item_metadata
             return dict(tree)
         except Exception:
             return None
+        finally:
+            absl.setLevel(level)
 
     def _require_step(self, step: int | None) -> int:
         if step is None:
