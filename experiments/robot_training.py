@@ -1,6 +1,7 @@
 """Robot-task training runs against env steps and wall time, beside MuJoCo Playground's result.
 
     python -m experiments.robot_training RUN_DIR [RUN_DIR ...]
+    python -m experiments.robot_training RUN_DIR --merge    # add or replace these runs' rows
 
 For each run (``python -m fastrl.train env=<robot task> algo=ppo ...``), from its
 ``metrics.csv``: every evaluation (deterministic policy: mean return, episode length and the
@@ -125,10 +126,22 @@ def main() -> None:
     parser.add_argument("run_dirs", nargs="+", type=pathlib.Path)
     parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS, help="results folder")
     parser.add_argument("--note", default="", help="a sentence on the runs, shown under the tables")
+    parser.add_argument(
+        "--merge", action="store_true",
+        help="keep the saved results' other runs (rows of an earlier command), with their note",
+    )  # fmt: skip
     args = parser.parse_args()
     runs = [read_run(d) for d in args.run_dirs]
-    meta = {"machine": results.machine(), "date": results.today(), "note": args.note}
-    page = markdown(runs) + (f"\n\n{args.note}" if args.note else "")
+    note = args.note
+    if args.merge:
+        saved = json.loads((args.out / "robot_training.json").read_text())
+        new = {r["run_dir"] for r in runs}
+        runs = [r for r in saved["runs"] if r["run_dir"] not in new] + runs
+        note = " ".join(n for n in (saved["meta"].get("note", ""), args.note) if n)
+        merged = "Rows merged (`--merge`) from earlier runs of this script."
+        note += "" if merged in note else f" {merged}"
+    meta = {"machine": results.machine(), "date": results.today(), "note": note}
+    page = markdown(runs) + (f"\n\n{note}" if note else "")
     results.save(args.out, "robot_training", {"meta": meta, "runs": runs}, page)
     print(page)
 
