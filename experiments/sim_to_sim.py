@@ -176,11 +176,12 @@ def markdown(row: dict) -> str:
         f"{row['steps']} control steps from the same starts, domain randomisation off; the policy's "
         "deterministic action. MuJoCo C: the scene as written, float64, the policy reading "
         "`observation_from_mujoco`; both sides scored by the env's reward function.", "",
-        "| simulator | return | " + " | ".join(names) + " |",
+        "| " + " | ".join(["simulator", "return", *names]) + " |",
         "| --- | ---: |" + " ---: |" * len(names),
-        *(f"| {label} | {s['return']:.1f} ± {s['return_std']:.1f} | "
-          + " | ".join(f"{s[k]:.2f}" for k in names) + " |" for label, s in (("fastrl", f), ("MuJoCo C", m))),
-        "| MuJoCo C / fastrl | " + " | ".join(pct(kept[k]) for k in ("return", *names)) + " |",
+        *("| " + " | ".join([label, f"{s['return']:.1f} ± {s['return_std']:.1f}",
+                             *(f"{s[k]:.2f}" for k in names)]) + " |"
+          for label, s in (("fastrl", f), ("MuJoCo C", m))),
+        "| " + " | ".join(["MuJoCo C / fastrl", *(pct(kept[k]) for k in ("return", *names))]) + " |",
     ]  # fmt: skip
     return "\n".join(lines)
 
