@@ -23,7 +23,6 @@ Writes ``experiments/results/commands_<env>.{md,json}``.
 from __future__ import annotations
 
 import argparse
-import inspect
 import pathlib
 
 import jax
@@ -31,8 +30,8 @@ import numpy as np
 
 import fastrl
 from experiments import results, sim_to_sim
-from fastrl import envs
 from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer
+from fastrl.training.config import RunConfig
 
 COMMANDS = ((0.0, 0.0, 0.0), (0.5, 0.0, 0.0), (1.0, 0.0, 0.0), (-0.5, 0.0, 0.0), (0.0, 0.5, 0.0),
             (0.0, 0.0, 1.0), (0.0, 0.0, -1.0))  # fmt: skip
@@ -64,14 +63,13 @@ def _side(env, episodes) -> dict:
 def measure(run_dir: str, commands, n: int, runs: int, seconds: float) -> tuple[str, list[dict]]:
     """The env's name and a row per command."""
     policy = fastrl.load_policy(run_dir)
-    name = sim_to_sim.nominal_env(policy).name
-    kicks = {"pushes": False} if "pushes" in inspect.signature(envs.env_class(name)).parameters else {}
+    base = sim_to_sim.nominal_env(policy)
+    kicks = {"pushes": False} if "pushes" in RunConfig.from_dict(policy.run_config).env.options else {}
+    steps, settle = int(round(seconds / base.dt)), int(round(SETTLE_S / base.dt))
+    length = max(steps, base.episode_length)  # one episode holds the command for the whole time
     rows = []
     for command in commands:
-        env = sim_to_sim.nominal_env(policy, command=list(command), **kicks)
-        steps, settle = int(round(seconds / env.dt)), int(round(SETTLE_S / env.dt))
-        if env.episode_length < steps:  # one episode holds the command for the whole time
-            env = sim_to_sim.nominal_env(policy, steps, command=list(command), **kicks)
+        env = sim_to_sim.nominal_env(policy, length, command=list(command), **kicks)
         ours, start = sim_to_sim.in_fastrl(env, policy, n, steps, seed=0, skip=settle)
         first = jax.tree.map(lambda x: x[:runs], start)
         theirs = sim_to_sim.in_mujoco(env, policy, first, steps, seed=0, skip=settle)
@@ -79,7 +77,7 @@ def measure(run_dir: str, commands, n: int, runs: int, seconds: float) -> tuple[
                "fastrl": _side(env, ours), "mujoco": _side(env, theirs)}  # fmt: skip
         rows.append(row)
         print(row, flush=True)
-    return name, rows
+    return base.name, rows
 
 
 def trained(run_dir: str) -> dict:

@@ -42,14 +42,11 @@ def nominal_env(policy, episode_length: int | None = None, **options):
     """The run's env with domain randomisation and observation noise off, and ``options`` (e.g.
     a held ``command``) over its own; ``episode_length`` (None: the run's)."""
     config = RunConfig.from_dict(policy.run_config).env
-    config = dataclasses.replace(
-        config, randomization=NOMINAL, options={**config.options, **options},
+    quiet = {"observation_noise": 0.0} if "observation_noise" in config.options else {}
+    return dataclasses.replace(
+        config, randomization=NOMINAL, options={**config.options, **quiet, **options},
         episode_length=episode_length or config.episode_length,
-    )  # fmt: skip
-    env = config.make()
-    if getattr(env, "observation_noise", 0.0):
-        env = dataclasses.replace(config, options={**config.options, "observation_noise": 0.0}).make()
-    return env
+    ).make()  # fmt: skip
 
 
 class Episodes(NamedTuple):
