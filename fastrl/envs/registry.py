@@ -33,6 +33,7 @@ for _cls in (
     scenes.HandReorient,
     scenes.AntGoal,
     robots.Go1Joystick,
+    robots.Go1JoystickRough,
     robots.PandaPickCube,
     robots.BerkeleyHumanoidJoystick,
     robots.LeapCubeReorient,

@@ -142,18 +142,17 @@ class Go1Joystick(JoystickTask):
     PPO shares one observation between actor and critic.)
 
     Reward: Playground's terms and scales, summed and multiplied by the control step (0.02 s):
-    ``tracking_lin_vel`` exp(-|command xy - velocity xy|^2 / 0.25) (1),
-    ``tracking_ang_vel`` the same for yaw (0.5), ``lin_vel_z`` -v_z^2 (0.5), ``ang_vel_xy``
-    -|w_xy|^2 (0.05), ``orientation`` -|up_xy|^2 (5), ``torques`` -(|tau|_2 + |tau|_1)
-    (2e-4), ``action_rate`` -|a - a_last|^2 (0.01), ``energy`` -sum |qdot tau| (1e-3),
-    ``pose`` exp(-sum w (q - q_stand)^2) with w 1, 1, 0.1 per leg (0.5), ``stand_still``
-    -sum |q - q_stand| while the command is zero (1), ``dof_pos_limits`` -(distance beyond 95%
-    of each joint's range) (1), ``feet_clearance`` -sum |foot z - 0.1| sqrt(|foot v_xy|) (2),
-    ``feet_slip`` -|foot v_xy|^2 of feet in contact (0.1), ``feet_air_time`` (air time - 0.1)
-    of each foot at touchdown (0.1), ``feet_height`` -(swing peak / 0.1 - 1)^2 at touchdown
-    (0.2), ``termination`` -1 when the episode ends by a fall (1). The foot terms count only
-    while a command is given. Playground clips the total at zero; here ``floor`` is the amount
-    that clip adds, a term of its own, so the terms still sum to the reward.
+    ``tracking_lin_vel`` exp(-|command xy - velocity xy|^2 / 0.25) (1), ``tracking_ang_vel`` the
+    same for yaw (0.5), ``lin_vel_z`` -v_z^2 (0.5), ``ang_vel_xy`` -|w_xy|^2 (0.05), ``orientation``
+    -|up_xy|^2 (5), ``torques`` -(|tau|_2 + |tau|_1) (2e-4), ``action_rate`` -|a - a_last|^2 (0.01),
+    ``energy`` -sum |qdot tau| (1e-3), ``pose`` exp(-sum w (q - q_stand)^2) with w 1, 1, 0.1 per leg
+    (0.5), ``stand_still`` -sum |q - q_stand| while the command is zero (1), ``dof_pos_limits``
+    -(distance beyond each joint's range scaled by 0.95 about zero) (1), ``feet_clearance`` -sum
+    |foot z - 0.1| sqrt(|foot v_xy|) (2), ``feet_slip`` -|foot v_xy|^2 of feet in contact (0.1),
+    ``feet_air_time`` (air time - 0.1) of each foot at touchdown (0.1), ``feet_height`` -(swing peak
+    / 0.1 - 1)^2 at touchdown (0.2), ``termination`` -1 when the episode ends by a fall (1). The
+    foot terms count only while a command is given. Playground clips the total at zero; here
+    ``floor`` is the amount that clip adds, a term of its own, so the terms still sum to the reward.
 
     The episode ends when the trunk turns upside down. Resets: the standing pose shifted by up
     to 0.5 m, turned to a uniform heading, with base velocities uniform in +-0.5.
@@ -195,11 +194,13 @@ class Go1Joystick(JoystickTask):
         foot_geoms = [m.geom_names.index(f) for f in self.feet]
         self._foot_bodies = np.asarray(m.geom_bodyid)[foot_geoms]
         self._foot_geoms = np.asarray(foot_geoms)
-        # each foot's contact candidate against the floor (one per sphere-plane pair)
-        self._foot_contacts = np.asarray([self._pair_slots(f, "floor")[0] for f in self.feet])
+        # each foot's contact candidates against the floor (4, k): one against a plane, several
+        # against a height field; a foot touches when any of its candidates does
+        self._foot_contacts = np.stack([self._pair_slots(f, "floor") for f in self.feet])
+        # Playground's Go1 scales each joint's range about zero, not about its middle (as its
+        # humanoids do): the knee's [-2.818, -0.888] becomes [-2.677, -0.844]
         lo, hi = np.asarray(m.jnt_range[1:, 0]), np.asarray(m.jnt_range[1:, 1])
-        mid, half = (lo + hi) / 2, (hi - lo) / 2
-        self._soft_limits = (mid - 0.95 * half, mid + 0.95 * half)
+        self._soft_limits = (0.95 * lo, 0.95 * hi)
 
     # ---------------------------------------------------------------- episode and task
 
@@ -276,7 +277,7 @@ class Go1Joystick(JoystickTask):
         """Each foot's world position (4, 3), velocity (4, 3) and whether it touches the floor."""
         pos = data.geom_xpos[self._foot_geoms]
         vel = self._point_velocity(data, self._foot_bodies, pos)
-        touching = data.contact_dist[self._foot_contacts] < 0
+        touching = jnp.any(data.contact_dist[self._foot_contacts] < 0, axis=-1)
         return pos, vel, touching
 
     def _reward_task(self, model, before, after, action, task, key):
@@ -336,6 +337,19 @@ class Go1Joystick(JoystickTask):
             "marker": self._marker(after, next_command),
         }
         return terms, fell, self._motion(command, local, gyro, fell), task
+
+
+class Go1JoystickRough(Go1Joystick):
+    """Unitree Go1 follows a commanded velocity over rough ground (``env=go1_joystick_rough``).
+
+    Playground's ``Go1JoystickRoughTerrain``: ``go1_joystick``'s task, rewards, observation and
+    resets on the feet-only scene whose floor is a 20 x 20 m height field up to 5 cm high
+    (friction 1.0), the standing keyframe 0.35 m up. Each foot sphere meets the height field at
+    several contact candidates; a foot touches when any of them does. Domain randomisation as
+    ``go1_joystick``'s, the floor's friction +-30% around its 1.0."""
+
+    name = "go1_joystick_rough"
+    scene = "playground/locomotion/go1/scene_mjx_feetonly_rough_terrain"
 
 
 class PandaPickCube(RobotTask):
