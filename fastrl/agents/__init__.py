@@ -18,7 +18,7 @@ from fastrl.agents.ppo import PPOConfig, make_ppo
 from fastrl.agents.sac import SACConfig, make_sac
 
 ALGORITHMS = {
-    "ppo": Algorithm(PPOConfig, make_ppo, splits_over_devices=True),
+    "ppo": Algorithm(PPOConfig, make_ppo, splits_over_devices=True, privileged_critic=True),
     "sac": Algorithm(SACConfig, make_sac),
     "es": Algorithm(ESConfig, make_es),
     "apg": Algorithm(APGConfig, make_apg),
@@ -53,6 +53,13 @@ def make_learner(name: str, config, env, network: NetworkConfig, total_updates: 
     algorithm = ALGORITHMS[name]
     if not isinstance(config, algorithm.config):
         raise TypeError(f"{name} expects a {algorithm.config.__name__}, got {type(config).__name__}")
+    if env.policy_observation_size != env.observation_size and not algorithm.privileged_critic:
+        raise UnsuitableEnvError(
+            f"{name} cannot train {env.name} made with a privileged critic state (its observation "
+            f"appends {env.observation_size - env.policy_observation_size} entries that only a "
+            f"critic may read, and {name} has no separate critic input): make the env without "
+            "it (env.options.privileged_critic=false), or train it with ppo"
+        )
     if mesh is not None:
         if not algorithm.splits_over_devices:
             raise ValueError(f"{name} does not split its work over devices itself; pass mesh=None")

@@ -55,11 +55,15 @@ class Algorithm(NamedTuple):
       make                 ``make(config, env, network, total_updates[, mesh=]) -> Learner``
       splits_over_devices  ``make`` takes a device mesh and splits its env batch and minibatch
                            gradients itself; ``config`` is then a ``SplitsOverDevices``
+      privileged_critic    it trains envs whose observation appends privileged state after
+                           the policy's part (``Env.policy_observation_size``): its critic reads
+                           all of it, its policy only that part
     """
 
     config: type
     make: Callable[..., Learner]
     splits_over_devices: bool = False
+    privileged_critic: bool = False
 
 
 def observation_normalizer(enabled: bool) -> Callable[[normalizer.RunningStats, jax.Array], jax.Array]:
@@ -71,11 +75,24 @@ def observation_normalizer(enabled: bool) -> Callable[[normalizer.RunningStats, 
     return norm
 
 
-def make_act(policy_net, dist, norm, to_env: Callable[[jax.Array], jax.Array] | None = None):
-    """``act(policy_params, obs, key=None)``: the policy's mode (key None) or a sample, in env units."""
+def make_act(
+    policy_net,
+    dist,
+    norm,
+    to_env: Callable[[jax.Array], jax.Array] | None = None,
+    policy_obs: int | None = None,
+):
+    """``act(policy_params, obs, key=None)``: the policy's mode (key None) or a sample, in env units.
+
+    ``policy_obs``: the policy reads only the observation's first ``policy_obs`` entries (an env's
+    ``policy_observation_size``, where the rest is privileged state for a critic); ``obs`` may
+    then be the whole observation or just those entries."""
 
     def act(pp: PolicyParams, obs: jax.Array, key: jax.Array | None = None) -> jax.Array:
-        out = policy_net.apply(pp.network, norm(pp.obs_stats, obs))
+        stats = pp.obs_stats
+        if policy_obs is not None:
+            stats, obs = normalizer.head(stats, policy_obs), obs[..., :policy_obs]
+        out = policy_net.apply(pp.network, norm(stats, obs))
         raw = dist.mode_raw(out) if key is None else dist.sample_raw(out, key)
         action = dist.postprocess(raw)
         return action if to_env is None else to_env(action)

@@ -46,6 +46,11 @@ def combine(stats: RunningStats, n: jax.Array, mean_b: jax.Array, m2_b: jax.Arra
     return RunningStats(mean, m2, stats.count + n)
 
 
+def head(stats: RunningStats, size: int) -> RunningStats:
+    """The statistics of an observation's first ``size`` entries."""
+    return RunningStats(stats.mean[:size], stats.m2[:size], stats.count)
+
+
 def normalize(stats: RunningStats, x: jax.Array, clip: float = 10.0) -> jax.Array:
     """(x - mean) / std, clipped to [-clip, clip]; identity before any data."""
     var = jnp.where(stats.count > 1, stats.m2 / jnp.maximum(stats.count, 1.0), 1.0)

@@ -198,6 +198,7 @@ class _Parts(NamedTuple):
     env_reset: Callable
     env_step: Callable
     axis: str | None
+    policy_obs: int  # the observation's leading entries the policy reads (the critic reads all)
 
 
 def make_ppo(
@@ -228,7 +229,10 @@ def make_ppo(
     def init(key: jax.Array) -> PPOState:
         k_pol, k_val, k_env, k_rng = jax.random.split(key, 4)
         dummy = jnp.zeros((1, obs_size))
-        params = {"policy": p.policy_net.init(k_pol, dummy), "value": p.value_net.init(k_val, dummy)}
+        params = {
+            "policy": p.policy_net.init(k_pol, dummy[:, : p.policy_obs]),
+            "value": p.value_net.init(k_val, dummy),
+        }
         env_state = p.env_reset(jax.random.split(k_env, config.num_envs))
         zero = jnp.zeros((), jnp.int32)
         return PPOState(
@@ -255,7 +259,7 @@ def make_ppo(
     def policy_params(state: PPOState) -> PolicyParams:
         return PolicyParams(network=state.params["policy"], obs_stats=state.obs_stats)
 
-    act = make_act(p.policy_net, p.dist, p.norm)
+    act = make_act(p.policy_net, p.dist, p.norm, policy_obs=p.policy_obs)
 
     return Learner(
         init=init, update=update, policy_params=policy_params, act=act,
@@ -283,6 +287,7 @@ def _parts(
         env_reset=jax.vmap(env.reset),
         env_step=over_devices(jax.vmap(env.step), mesh),
         axis=None if mesh is None else DEVICE_AXIS,
+        policy_obs=env.policy_observation_size,
     )
 
 
@@ -291,7 +296,8 @@ def _make_rollout(config: PPOConfig, p: _Parts):
 
     def rollout(state: PPOState, key: jax.Array):
         def one(env_state, k):
-            out = p.policy_net.apply(state.params["policy"], p.norm(state.obs_stats, env_state.obs))
+            obs = p.norm(state.obs_stats, env_state.obs)
+            out = p.policy_net.apply(state.params["policy"], obs[..., : p.policy_obs])
             raw = p.dist.sample_raw(out, k)
             nxt = p.env_step(env_state, p.dist.postprocess(raw))
             tr = Transition(
@@ -319,7 +325,7 @@ def _make_loss(config: PPOConfig, p: _Parts):
         # Under a mesh this sees one device's share of the minibatch: its losses are means over
         # that share, and the gradients are averaged across devices (``minibatch_grads``).
         obs = p.norm(stats, batch.obs)
-        out = p.policy_net.apply(params["policy"], obs)
+        out = p.policy_net.apply(params["policy"], obs[..., : p.policy_obs])
         log_prob = p.dist.log_prob(out, batch.raw_action)
         ratio = jnp.exp(log_prob - batch.log_prob)
         if config.normalize_advantages:

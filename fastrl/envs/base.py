@@ -270,6 +270,14 @@ class Env:
         return int(jax.eval_shape(observe).shape[0])
 
     @property
+    def policy_observation_size(self) -> int:
+        """The leading entries of the observation that a policy reads. Where an env is made to
+        carry privileged state for a learner's critic (asymmetric actor-critic, as Playground's
+        ``privileged_state``), the observation appends it after these; otherwise this is
+        ``observation_size``."""
+        return self.observation_size
+
+    @property
     def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(nu,), (nu,) the ctrlrange of each actuator, as Gymnasium's action space."""
         rng = np.asarray(self.model.actuator_ctrlrange, np.float32)

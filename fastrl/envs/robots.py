@@ -138,8 +138,8 @@ class Go1Joystick(JoystickTask):
     Observation (48): the IMU's linear velocity in its own frame, the gyro, gravity in the IMU
     frame, joint angles minus the standing pose, joint velocities, the last action and the
     command. The first 45 carry uniform noise of (0.1, 0.2, 0.05, 0.03, 1.5) per group, as
-    Playground's default. (Playground's critic also sees noise-free privileged state; fastrl's
-    PPO shares one observation between actor and critic.)
+    Playground's default. ``privileged_critic=True`` appends, for PPO's critic only, the
+    noise-free sensors and ``_privileged`` (Playground's critic reads its ``privileged_state``).
 
     Reward: Playground's terms and scales, summed and multiplied by the control step (0.02 s):
     ``tracking_lin_vel`` exp(-|command xy - velocity xy|^2 / 0.25) (1), ``tracking_ang_vel`` the
@@ -181,9 +181,11 @@ class Go1Joystick(JoystickTask):
     noise = (0.1, 0.2, 0.05, 0.03, 1.5)  # linvel, gyro, gravity, joint angles, joint velocities
     feet = ("FR", "FL", "RR", "RL")
 
-    def __init__(self, **kwargs):
-        """Arguments as ``JoystickTask``'s."""
+    def __init__(self, *, privileged_critic: bool = False, **kwargs):
+        """Arguments as ``JoystickTask``'s; ``privileged_critic`` appends the privileged state
+        (``_privileged``) to the observation, for a learner's critic."""
         super().__init__(**kwargs)
+        self.privileged_critic = bool(privileged_critic)
         mj = self._mujoco_model()
         key = mj.key("home")
         self._home_qpos = np.asarray(key.qpos, np.float64)
@@ -251,17 +253,44 @@ class Go1Joystick(JoystickTask):
     def _imu_frame(self, data):
         return data.site_xmat[self._imu]
 
-    def _observe_task(self, model, data, task):
+    def _policy_observation(self, data, task):
+        """The policy's observation and its noise-free sensor readings."""
         frame = self._imu_frame(data)
         linvel = frame.T @ self._point_velocity(data, self._trunk, data.site_xpos[self._imu])
         gyro = frame.T @ data.cvel[self._trunk, :3]
         gravity = -frame[2]  # world -z in the IMU frame: the third row of the rotation
         sensed = jnp.concatenate([linvel, gyro, gravity, data.qpos[7:] - self._stand, data.qvel[6:]])
-        return jnp.concatenate([sensed + task["noise"], task["last_action"], task["command"]])
+        return jnp.concatenate([sensed + task["noise"], task["last_action"], task["command"]]), sensed
+
+    def _observe_task(self, model, data, task):
+        obs, sensed = self._policy_observation(data, task)
+        if not self.privileged_critic:
+            return obs
+        return jnp.concatenate([obs, sensed, self._privileged(data, task)])
+
+    def _privileged(self, data, task):
+        """What the critic reads beyond the noise-free sensors (Playground's ``privileged_state``
+        less its accelerometer and perturbation entries): the actuator forces, the trunk's world
+        angular velocity, each foot's contact, world velocity and time in the air."""
+        _, feet_vel, _ = self._feet(data)
+        return jnp.concatenate([
+            data.actuator_force, data.cvel[self._trunk, :3], task["last_contact"].astype(data.qpos.dtype),
+            feet_vel.ravel(), task["air_time"],
+        ])  # fmt: skip
+
+    @property
+    def policy_observation_size(self) -> int:
+        def policy_only():  # traced abstractly, as observation_size
+            data = self._reset_data(jax.random.PRNGKey(0), self.model)
+            task = self._sample_task(jax.random.PRNGKey(0), self.model, data)
+            return self._policy_observation(data, task)[0]
+
+        return int(jax.eval_shape(policy_only).shape[0])
 
     def observation_from_mujoco(self, md: mujoco.MjData, task: dict) -> np.ndarray:
-        """The observation of MuJoCo C's ``mjData`` (after ``mj_step``), from the scene's own IMU
-        sensors, with ``task``'s last action, command and noise: to run a policy in MuJoCo C."""
+        """The policy's observation of MuJoCo C's ``mjData`` (after ``mj_step``), from the
+        scene's own IMU sensors, with ``task``'s last action, command and noise: to run a policy
+        in MuJoCo C (without the privileged state a critic reads)."""
         sensor = lambda name: md.sensor(name).data  # noqa: E731
         frame = md.site_xmat[self._imu].reshape(3, 3)
         sensed = np.concatenate(

@@ -92,6 +92,25 @@ def test_go1_joystick_auto_resets_to_fresh_commands_and_is_deterministic(go1):
     assert not np.allclose(np.asarray(end.data.qpos), np.asarray(start.data.qpos))  # a new draw
 
 
+def test_go1_joystick_privileged_critic_state_follows_the_policys_observation(go1):
+    """``privileged_critic=True`` appends Playground's privileged state after the policy's 48
+    entries, which stay as they were: the noise-free sensors, the actuator forces, the trunk's
+    angular velocity and each foot's contact, velocity and air time."""
+    env, reset, step = go1
+    priv = envs.make(env.name, privileged_critic=True)
+    assert (priv.policy_observation_size, priv.observation_size) == (48, 48 + 33 + 12 + 3 + 4 + 12 + 4)
+    state = _run(reset, step, 2, 4, jnp.zeros((6, 4, 12)))[-1]
+    obs = np.asarray(
+        jax.jit(jax.vmap(priv._observe_task, in_axes=(None, 0, 0)))(priv.model, state.data, state.task)
+    )
+    np.testing.assert_array_equal(obs[:, :48], np.asarray(state.obs))
+    np.testing.assert_allclose(obs[:, 48:81], np.asarray(state.obs[:, :33] - state.task["noise"]), atol=1e-5)
+    np.testing.assert_array_equal(obs[:, 81:93], np.asarray(state.data.actuator_force))
+    np.testing.assert_array_equal(obs[:, 96:100], np.asarray(state.task["last_contact"], np.float32))
+    np.testing.assert_array_equal(obs[:, -4:], np.asarray(state.task["air_time"]))
+    assert np.asarray(state.task["last_contact"]).any()  # standing: some feet touch
+
+
 def test_a_held_command_survives_resets_and_due_redraws():
     """``command=`` holds one command at every reset and through the task's redraws (which go
     on without it); the motion metrics report what the tracking terms score."""

@@ -131,3 +131,41 @@ def test_ppo_recomputed_advantages_match_on_the_first_epoch_and_then_move():
     fixed = _ppo_after_one_update(update_epochs=3)
     fresh = _ppo_after_one_update(update_epochs=3, recompute_advantages=True)
     assert max(float(jnp.max(jnp.abs(a - b))) for a, b in zip(fixed, fresh, strict=True)) > 1e-5
+
+
+class _PrivilegedPendulum(envs.manipulation.InvertedPendulum):
+    """The cart-pole with privileged state for a critic appended to its observation (qvel x 3)."""
+
+    def _observe(self, model, data):
+        return jnp.concatenate([super()._observe(model, data), 3.0 * data.qvel])
+
+    @property
+    def policy_observation_size(self) -> int:
+        return self.observation_size - self.model.nv
+
+
+def test_ppo_reads_privileged_state_in_its_critic_only():
+    """An env whose observation appends privileged state (``policy_observation_size``): PPO's
+    value network reads the whole observation, its policy only the leading part, so the
+    trained policy's actions do not change with the privileged entries and it acts on the
+    policy's part alone (as in MuJoCo C, where no privileged state is computed). Learners
+    without a separate critic input refuse such an env."""
+    env = _PrivilegedPendulum()
+    k, n = env.policy_observation_size, env.observation_size
+    assert (k, n) == (4, 6)
+    config = agents.PPOConfig(num_envs=8, unroll_length=4, num_minibatches=2, update_epochs=1)
+    learner = agents.make_learner("ppo", config, env, agents.NetworkConfig(), total_updates=2)
+    state, _ = jax.jit(learner.update)(learner.init(jax.random.PRNGKey(0)))
+    first = lambda net: jax.tree.leaves(net)[1].shape[0]  # noqa: E731 - Dense_0's kernel rows
+    assert first(state.params["policy"]) == k and first(state.params["value"]) == n
+    pp = learner.policy_params(state)
+    obs = state.env_state.obs
+    other = obs.at[:, k:].set(jax.random.normal(jax.random.PRNGKey(1), (obs.shape[0], n - k)))
+    act = jax.jit(learner.act)
+    np.testing.assert_array_equal(act(pp, obs), act(pp, other))
+    np.testing.assert_array_equal(act(pp, obs), act(pp, obs[:, :k]))
+    assert float(jnp.abs(state.obs_stats.mean[k:]).sum()) > 0  # the normaliser saw the critic's part
+    for algo in ("sac", "es", "apg"):
+        cfg = agents.config_class(algo)()
+        with pytest.raises(agents.UnsuitableEnvError, match="privileged critic state"):
+            agents.make_learner(algo, cfg, env, agents.NetworkConfig(), total_updates=1)
