@@ -34,7 +34,7 @@ from fastrl.envs import robots
 SCENES = {
     cls.name: cls.scene
     for cls in vars(robots).values()
-    if isinstance(cls, type) and issubclass(cls, robots.RobotTask) and cls is not robots.RobotTask
+    if isinstance(cls, type) and issubclass(cls, robots.RobotTask) and cls.scene  # not the base classes
 }
 TASKS = sorted(SCENES)
 
