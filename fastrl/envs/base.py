@@ -17,7 +17,7 @@ those MuJoCo's ``mjData`` holds after ``mj_step``.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import jax
@@ -261,13 +261,17 @@ class Env:
 
     @property
     def observation_size(self) -> int:
-        # Traced abstractly (shapes only): run eagerly, the reset would compile every primitive.
-        def observe():
-            data = self._reset_data(jax.random.PRNGKey(0), self.model)
-            task = self._sample_task(jax.random.PRNGKey(0), self.model, data)
-            return self._observe_task(self.model, data, task)
+        return self._reset_size(lambda data, task: self._observe_task(self.model, data, task))
 
-        return int(jax.eval_shape(observe).shape[0])
+    def _reset_size(self, observe: Callable[[Data, dict], jax.Array]) -> int:
+        """The length of ``observe(data, task)`` at a reset state, traced abstractly (shapes
+        only): run eagerly, the reset would compile every primitive."""
+
+        def run():
+            data = self._reset_data(jax.random.PRNGKey(0), self.model)
+            return observe(data, self._sample_task(jax.random.PRNGKey(0), self.model, data))
+
+        return int(jax.eval_shape(run).shape[0])
 
     @property
     def policy_observation_size(self) -> int:

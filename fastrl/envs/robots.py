@@ -280,12 +280,7 @@ class Go1Joystick(JoystickTask):
 
     @property
     def policy_observation_size(self) -> int:
-        def policy_only():  # traced abstractly, as observation_size
-            data = self._reset_data(jax.random.PRNGKey(0), self.model)
-            task = self._sample_task(jax.random.PRNGKey(0), self.model, data)
-            return self._policy_observation(data, task)[0]
-
-        return int(jax.eval_shape(policy_only).shape[0])
+        return self._reset_size(lambda data, task: self._policy_observation(data, task)[0])
 
     def observation_from_mujoco(self, md: mujoco.MjData, task: dict) -> np.ndarray:
         """The policy's observation of MuJoCo C's ``mjData`` (after ``mj_step``), from the
