@@ -76,11 +76,12 @@ def test_panda_pick_cube_ppo_lifts_the_cube_to_its_target_in_half_the_episodes(t
 
 @pytest.mark.slow
 def test_go1_joystick_ppo_walks_forward_on_command(tmp_path):
-    """go1_joystick: after the shipped settings and budget (one seed), the deterministic policy
-    under a held forward command of 0.5 m/s (6 s from reset, 32 envs, no observation noise,
-    nominal physics; ``experiments.joystick_commands``) moves forward at 0.25 m/s or more on
-    average. A robot that stands, or only turns on command, scores ~0. The bar was set on
-    2026-11-28, before any run with a privileged critic had finished."""
+    """go1_joystick: after the shipped settings and budget (120M steps, ~2 h on this 2-core CPU;
+    one seed), the deterministic policy under a held forward command of 0.5 m/s (6 s from reset,
+    32 envs, no observation noise, nominal physics; ``experiments.joystick_commands``) moves
+    forward at 0.25 m/s or more on average. A robot that stands, or only turns on command,
+    scores ~0. The bar was set on 2026-11-28, before any run with a privileged critic had
+    finished."""
     out = run(compose_cfg(["env=go1_joystick", "algo=ppo", "logger=quiet", f"run_dir={tmp_path}"]))
     _, rows = joystick_commands.measure(str(tmp_path), [(0.5, 0.0, 0.0)], n=32, runs=1, seconds=6.0)
     forward = rows[0]["fastrl"]["velocity"][0]
