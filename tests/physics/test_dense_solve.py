@@ -14,7 +14,7 @@ from fastrl.physics import smooth
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("n", [14, 23, 31])
+@pytest.mark.parametrize("n", [14, 17, 23, 31, 40])
 def test_column_cholesky_and_solve_match_numpy(n):
     rng = np.random.default_rng(n)
     a = rng.standard_normal((n, n))
