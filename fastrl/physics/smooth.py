@@ -310,7 +310,7 @@ def _dense_cholesky(qm: jax.Array) -> jax.Array:
     rows, column by column; above, by 2 x 2 blocks: the leading block's factor ``c11``, the block
     below it ``l21 = qm21 c11^-T`` (forward substitution), and the factor of the Schur complement
     ``qm22 - l21 l21^T``, whose product is one matrix multiplication (a batched GEMM under vmap)
-    in place of ~n^2/2 rank-1 updates."""
+    in place of ``h`` rank-1 updates of that block."""
     n = qm.shape[-1]
     if n <= COLUMN_CHOLESKY_MAX:
         return _column_cholesky(qm)
