@@ -16,7 +16,10 @@ its substeps.
 
 Swept: fastrl's integrator (euler, rk4) x timestep (dt / substeps, substeps 1, 2, 4, frame_skip
 and twice it) x constraint-solver iterations (2, 3, 5, 8; the loader default only for the
-contact-free model), in float32, its default; and MuJoCo C at the same timesteps with the asset's
+contact-free model), in float32, its default, with the env's own line search (``Env.linesearch``:
+exact line searches for these models, so the rows time the solver their envs train with; runs
+before 2026-11-28 took the loader's default, MuJoCo's line search, and their tables say so); and
+MuJoCo C at the same timesteps with the asset's
 own integrator and solver options.
 
 Accuracy: error against a converged reference, MuJoCo C in float64 at 1/20 of the asset's
@@ -124,7 +127,7 @@ def make_task(name: str, batch: int, horizon_s: float, seed: int = 0) -> dict:
     return {
         "name": name, "asset": ASSETS / env.asset, "mj": mj, "frame_skip": env.frame_skip,
         "dt": dt, "steps": steps, "qpos": np.asarray(starts.qpos), "qvel": np.asarray(starts.qvel),
-        "ctrl": ctrl, "shipped": shipped_setting(name, dt),
+        "ctrl": ctrl, "shipped": shipped_setting(name, dt), "linesearch": env.linesearch,
     }  # fmt: skip
 
 
@@ -219,7 +222,9 @@ def solver_name(mj: mujoco.MjModel) -> str:
 def fastrl_program(task: dict, integrator: str, iterations: int) -> Callable:
     """Jitted ``(qpos0, qvel0, ctrl, timestep, substeps) -> (qpos per control step, diverged)``,
     batched over the leading axis; ``ctrl`` is (batch, steps, nu), the output qpos likewise."""
-    m = physics.model_from_mujoco(task["mj"], integrator=integrator, solver_iterations=iterations)
+    m = physics.model_from_mujoco(
+        task["mj"], integrator=integrator, solver_iterations=iterations, linesearch=task["linesearch"]
+    )
 
     def run(qpos0, qvel0, ctrl, timestep, substeps):
         mt = m.replace(timestep=timestep)
@@ -405,10 +410,13 @@ def sweep_brax(task: dict, ref: np.ndarray, plan: dict) -> list[dict]:
     return rows
 
 
-def sweep_model(task: dict, plan: dict, keep: list[dict] | None = None) -> dict:
+def sweep_model(
+    task: dict, plan: dict, keep: list[dict] | None = None, brax_rows: list[dict] | None = None
+) -> dict:
     """Reference, floor, every setting's speed and error, and the Pareto front of one model.
     ``keep``: rows of an earlier run to reuse instead of sweeping fastrl and MuJoCo C again
-    (``--brax-only``)."""
+    (``--brax-only``); ``brax_rows``: an earlier run's Brax rows to carry instead of running Brax
+    (``--merge --no-brax``)."""
     name, mj = task["name"], task["mj"]
     t0 = time.perf_counter()
     ref_q, ref_mj = reference_qpos(task, REF_DIVISOR, plan["sequences"])
@@ -422,6 +430,7 @@ def sweep_model(task: dict, plan: dict, keep: list[dict] | None = None) -> dict:
         rows = [r for r in keep if r["engine"] != "Brax"]
     for r in sweep_brax(task, ref, plan):
         rows.append({**r, "added_later": keep is not None, "measured": time.strftime("%Y-%m-%d")})
+    rows += [{**r, "added_later": True} for r in brax_rows or []]
     fastrl_rows = [r for r in rows if r["engine"] == "fastrl"]
     for r, on_front in zip(rows, pareto(rows, floor), strict=True):
         r["pareto"] = on_front
@@ -430,7 +439,7 @@ def sweep_model(task: dict, plan: dict, keep: list[dict] | None = None) -> dict:
     return {
         "dt": task["dt"], "frame_skip": task["frame_skip"], "horizon_s": task["steps"] * task["dt"],
         "control_steps": task["steps"], "sequences": plan["sequences"], "batch": plan["batch"],
-        "floor": floor, "shipped": task["shipped"],
+        "floor": floor, "shipped": task["shipped"], "linesearch": task["linesearch"],
         "metric": "qpos (m, rad)" if name in CONTACT_FREE else "root body position (m)",
         "reference": {"integrator": integrator_name(ref_mj),
                       "timestep": ref_mj.opt.timestep, "solver": "Newton", "iterations": 100,
@@ -440,6 +449,11 @@ def sweep_model(task: dict, plan: dict, keep: list[dict] | None = None) -> dict:
 
 
 # ---------------------------------------------------------------- outputs
+
+SOLVER_TEXT = {
+    "exact": "Newton with exact line searches and a fixed iteration count (`linesearch='exact'`)",
+    "mujoco": "Newton with MuJoCo's line search and early exit (`linesearch='mujoco'`)",
+}
 
 
 def label(r: dict) -> str:
@@ -516,13 +530,17 @@ def markdown(measured: dict, machine: str) -> str:
             for key, text in (("pareto", "the Pareto front"), ("pareto_fastrl", "fastrl's front"))
         )
         s, ref = res["shipped"], res["reference"]
+        # runs before the sweep followed the env's line search measured the loader's default
+        solver = SOLVER_TEXT[res.get("linesearch", "mujoco")]
+        if "linesearch" not in res:
+            solver += " (the loader's default then; the env steps with exact line searches)"
         later = [r for r in res["rows"] if r.get("added_later")]
         lines += [f"## {name}", "",
                   f"Control step {res['dt']:g} s, horizon {res['horizon_s']:g} s ({res['control_steps']} "
                   f"control steps), {res['sequences']} sequences. Metric: {res['metric']}. Reference: "
                   f"MuJoCo C {ref['integrator']} at {ref['timestep']:.3g} s. Floor: {res['floor']:.2e}. "
                   f"Shipped: fastrl {s['integrator']} x{s['substeps']}, {s['solver_iterations']} "
-                  f"iterations, {where}.", "",
+                  f"iterations, {where}. fastrl's constraint solver: {solver}.", "",
                   *([f"Brax's rows were measured on {later[0]['measured']} by `--brax-only`, in a later run "
                      "than the others on the same machine.", ""] if later else []),
                   *([f"Shipped setting marked anew on {res['shipped_marked']} from the configs of that day "
@@ -601,7 +619,10 @@ def main() -> None:
     for name in models:
         task = make_task(name, 64 if args.quick else BATCH, 0.2 if args.quick else HORIZON_S[name])
         keep = earlier[name]["rows"] if args.brax_only else None
-        measured[name] = sweep_model(task, sweep_plan(task, args.quick, args), keep)
+        carried = None
+        if args.merge and args.no_brax and name in earlier:  # Brax not run: keep its earlier rows
+            carried = [r for r in earlier[name]["rows"] if r["engine"] == "Brax"]
+        measured[name] = sweep_model(task, sweep_plan(task, args.quick, args), keep, carried)
     measured = {name: measured[name] for name in MODELS if name in measured}  # a fixed order
     write(args.out / f"{stem}.json", results.machine(), measured)
 
