@@ -170,7 +170,13 @@ def fastrl_evaluate(
 def physics_label(env: Env) -> str:
     """``"rk4, 7 solver iterations"``: the integrator and solver fastrl steps ``env`` with."""
     integrator = physics.Integrator(env.model.integrator).name.lower()
-    return f"{integrator}, {env.model.solver_iterations} solver iterations"
+    return f"{integrator}{_substeps_label(env)}, {env.model.solver_iterations} solver iterations"
+
+
+def _substeps_label(env: Env) -> str:
+    """``" at 0.00375 s x 4"`` where the env's timestep is not the asset's, else ``""``."""
+    dt = _timestep_override(env, _compile_asset(env))
+    return "" if dt is None else f" at {dt:.6g} s x {env.frame_skip}"
 
 
 def reference_label(env: Env, simulator: str | None = None, integrator: str | None = None) -> str:
@@ -179,7 +185,7 @@ def reference_label(env: Env, simulator: str | None = None, integrator: str | No
     mj_integrator = _asset_model(env, integrator).opt.integrator
     integrator = mujoco.mjtIntegrator(mj_integrator).name.removeprefix("mjINT_").lower()
     where = f"Gymnasium {GYMNASIUM[env.name].env_id}" if simulator == "gymnasium" else f"{env.name}'s MJCF"
-    return f"{where}, MuJoCo {mujoco.__version__} C, {integrator}"
+    return f"{where}, MuJoCo {mujoco.__version__} C, {integrator}{_substeps_label(env)}"
 
 
 def compare(
@@ -195,7 +201,9 @@ def compare(
     the Ant's Euler with 5 solver iterations where the asset has RK4), two more scores pair
     each simulator with the other at equal physics: MuJoCo C at the run's integrator, and
     fastrl at the asset's settings. They tell a difference of physics settings from a
-    difference of simulators.
+    difference of simulators. A run at another timestep with the same control step (the
+    Humanoid's Euler at 0.00375 s x 4 for the asset's 0.003 s x 5) is scored at the asset's
+    physics in the reference simulator, and by MuJoCo C at the run's.
 
     Args:
       env_config: the run's ``fastrl.training.config.EnvConfig``.
@@ -212,16 +220,22 @@ def compare(
         fastrl_scores = fastrl_evaluate(env, policy, episodes, key)
     rows = {"fastrl": (f"fastrl ({physics_label(env)}: the run's)", fastrl_scores)}
     asset_config = dataclasses.replace(env_config, integrator=None, solver_iterations=None)
+    substeps = dataclasses.replace(asset_config, timestep=None, frame_skip=None)
+    resampled = substeps != asset_config and np.isclose(env.dt, substeps.make().dt, rtol=1e-6)
+    if resampled:  # the same control step in other substeps: the asset's physics is comparable
+        asset_config = substeps
+    asset_env = env
     if asset_config != env_config:
         asset_env = asset_config.make()
         integrator = physics.Integrator(env.model.integrator).name.lower()
-        if env.model.integrator != asset_env.model.integrator:
+        if env.model.integrator != asset_env.model.integrator or resampled:
             scores = evaluate(env, policy, episodes, key, "mujoco", integrator)
             rows["mujoco_run"] = (f"MuJoCo C ({reference_label(env, 'mujoco', integrator)})", scores)
         label = f"fastrl ({physics_label(asset_env)}: the asset's)"
         rows["fastrl_asset"] = (label, fastrl_evaluate(asset_env, policy, episodes, key))
-    ref = evaluate(env, policy, episodes, key)
-    rows["reference"] = (f"reference ({reference_label(env, ref.simulator)})", ref)
+    ref_env = asset_env if resampled else env
+    ref = evaluate(ref_env, policy, episodes, key)
+    rows["reference"] = (f"reference ({reference_label(ref_env, ref.simulator)})", ref)
     return rows
 
 

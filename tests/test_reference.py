@@ -49,9 +49,11 @@ def _one(rows: dict[str, float], *words: str) -> float:
     [
         ["env=inverted_pendulum", "algo=ppo"],
         ["env=inverted_pendulum", "algo=ppo", "env.integrator=euler"],
+        # the same 0.04 s control step in 4 substeps instead of the asset's 2
+        ["env=inverted_pendulum", "algo=ppo", "env.timestep=0.01", "env.frame_skip=4"],
         pytest.param(["env=hopper", "algo=ppo", "env.integrator=euler"], marks=pytest.mark.slow),
     ],
-    ids=["inverted_pendulum", "inverted_pendulum_euler", "hopper_euler"],
+    ids=["inverted_pendulum", "inverted_pendulum_euler", "inverted_pendulum_substeps", "hopper_euler"],
 )
 def test_reference_flag_prints_both_scores(tmp_path, capsys, overrides):
     """An env at its asset's physics, and envs trained at other physics (RK4 assets, Euler runs)."""
@@ -61,11 +63,18 @@ def test_reference_flag_prints_both_scores(tmp_path, capsys, overrides):
     assert ("evaluation returns are at this run's physics (euler" in trained) == (
         "env.integrator=euler" in overrides
     )
+    substeps = "env.frame_skip=4" in overrides
     assert evaluate.main([str(run_dir), "--reference", "--episodes", "4"]) == 0
     out = capsys.readouterr().out
     rows = _rows(out)
     ours, ref = _one(rows, "fastrl", "the run's"), _one(rows, "reference (Gymnasium")
     assert "fastrl / reference" in out
+    if substeps:  # scored at the asset's 0.02 s x 2 in Gymnasium, and by MuJoCo C at the run's
+        assert len(rows) == 4, out
+        assert _one(rows, "MuJoCo C", "rk4 at 0.01 s x 4") == pytest.approx(ours, rel=1e-6)
+        assert _one(rows, "fastrl", "the asset's") == pytest.approx(ref, rel=1e-6)
+        assert not [k for k in rows if k.startswith("reference") and " at 0." in k], out
+        return
     if "env.integrator=euler" not in overrides:
         assert len(rows) == 2, out
         assert ours == pytest.approx(ref, rel=1e-6)  # 20 steps, no contacts: the same survival

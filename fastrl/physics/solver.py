@@ -403,7 +403,8 @@ def solve(m: Model, d: Data) -> Data:
     # The last step runs outside the loop: the gradient and Hessian a step ends with are the next
     # step's, and the last step's would go unread (a quarter of the Humanoid's Hessian work at 3
     # iterations).
-    carry = jax.lax.fori_loop(0, m.solver_iterations - 1, lambda _, c: _newton_step(structure, rows, d, c), carry)
+    step = lambda _, c: _newton_step(structure, rows, d, c)  # noqa: E731
+    carry = jax.lax.fori_loop(0, m.solver_iterations - 1, step, carry)
     return finish(rows, d, _newton_step(structure, rows, d, carry, last=True)[0])
 
 
