@@ -64,6 +64,7 @@ def test_reference_flag_prints_both_scores(tmp_path, capsys, overrides):
         "env.integrator=euler" in overrides
     )
     substeps = "env.frame_skip=4" in overrides
+    assert ("this run's physics (rk4 at 0.01 s x 4" in trained) == substeps
     assert evaluate.main([str(run_dir), "--reference", "--episodes", "4"]) == 0
     out = capsys.readouterr().out
     rows = _rows(out)

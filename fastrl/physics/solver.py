@@ -394,10 +394,10 @@ def solve(m: Model, d: Data) -> Data:
     warm = d.qacc_warmstart
     a = jnp.where(primal_cost(rows, d, warm) < primal_cost(rows, d, d.qacc_smooth), warm, d.qacc_smooth)
     structure = hessian_structure(m)
-    # The loop carries the next step's gradient and Hessian: a loop boundary is the one place
-    # where XLA is sure to materialise H rather than fuse it into its readers.
     if m.solver_iterations == 0:
         return finish(rows, d, a)
+    # The loop carries the next step's gradient and Hessian: a loop boundary is the one place
+    # where XLA is sure to materialise H rather than fuse it into its readers.
     res = rows.jar(a)
     carry = (a, res, *gradient_hessian(rows, d, a, res))
     # The last step runs outside the loop: the gradient and Hessian a step ends with are the next

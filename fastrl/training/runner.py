@@ -505,7 +505,7 @@ def _announce_start(setup: _Setup, program: _Program, run_dir: Path) -> None:
         f"{program.compile_s:.1f}s ({program.note}) on {scale.describe(setup.shardings, setup.mesh)}; "
         f"run dir {run_dir}"
     )
-    if cfg.env.integrator is not None or cfg.env.solver_iterations is not None:
+    if any(getattr(cfg.env, k) is not None for k in ("integrator", "solver_iterations", "timestep")):
         physics_note = reference.physics_label(setup.env)
         print(f"[fastrl] evaluation returns are at this run's physics ({physics_note}); the score in the "
               f"reference simulator: python -m fastrl.evaluate {run_dir} --reference")  # fmt: skip
