@@ -532,7 +532,9 @@ def markdown(measured: dict, machine: str) -> str:
         s, ref = res["shipped"], res["reference"]
         # runs before the sweep followed the env's line search measured the loader's default
         solver = SOLVER_TEXT[res.get("linesearch", "mujoco")]
-        if "linesearch" not in res:
+        if name in CONTACT_FREE:
+            solver = "none (no constraint rows within the horizon)"
+        elif "linesearch" not in res:
             solver += " (the loader's default then; the env steps with exact line searches)"
         later = [r for r in res["rows"] if r.get("added_later")]
         lines += [f"## {name}", "",
