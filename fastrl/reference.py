@@ -221,12 +221,13 @@ def compare(
     rows = {"fastrl": (f"fastrl ({physics_label(env)}: the run's)", fastrl_scores)}
     asset_config = dataclasses.replace(env_config, integrator=None, solver_iterations=None)
     substeps = dataclasses.replace(asset_config, timestep=None, frame_skip=None)
-    resampled = substeps != asset_config and np.isclose(env.dt, substeps.make().dt, rtol=1e-6)
-    if resampled:  # the same control step in other substeps: the asset's physics is comparable
-        asset_config = substeps
-    asset_env = env
+    asset_env, resampled = env, False
+    if substeps != asset_config:  # the same control step in other substeps: comparable physics
+        asset_env = substeps.make()
+        resampled = bool(np.isclose(env.dt, asset_env.dt, rtol=1e-6))
+        asset_config = substeps if resampled else asset_config
     if asset_config != env_config:
-        asset_env = asset_config.make()
+        asset_env = asset_env if resampled else asset_config.make()
         integrator = physics.Integrator(env.model.integrator).name.lower()
         if env.model.integrator != asset_env.model.integrator or resampled:
             scores = evaluate(env, policy, episodes, key, "mujoco", integrator)
