@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import statistics
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -374,7 +375,10 @@ def robot_tasks_row() -> tuple[str, str, str, str]:
 def _learning_rows() -> list[tuple[str, str, str, str]]:
     """Headline rows on learning: (measure, peer, fastrl's result, record stem)."""
     ttr = {t: time_to_return(t) for t in ("inverted_pendulum", "halfcheetah_sac", "hopper_sac", "ant")}
-    ant_ref = next(r for r in load("reference_scores")["rows"] if r["run"].startswith("ant"))
+    scores = load("reference_scores")["rows"]
+    ant_ref = next(r for r in scores if r["run"].startswith("ant /"))
+    humanoid = sorted((r for r in scores if r["run"].startswith("humanoid / ppo")), key=lambda r: r["run"])
+    humanoid_scores = [r["reference"]["mean"] for r in humanoid]
     launch = load("first_minute")["results"]["ant"]
     sb3 = load("sb3_compare")
     times = {env: time_ratio(summary) for env, summary in sb3["summary"].items()}
@@ -390,6 +394,10 @@ def _learning_rows() -> list[tuple[str, str, str, str]]:
          "time_to_return_ant"),
         ("Default Ant PPO run, final policy scored in Gymnasium's Ant-v5", "MuJoCo C",
          f"{ant_ref['reference']['mean']:.0f} ± {ant_ref['reference']['std']:.0f}", "reference_scores"),
+        (f"Default Humanoid PPO run, final policy scored in Gymnasium's Humanoid-v5: median of "
+         f"{len(humanoid)} seeds", "MuJoCo C",
+         f"{statistics.median(humanoid_scores):.0f} (seeds: "
+         + " / ".join(f"{x:.0f}" for x in humanoid_scores) + ")", "reference_scores"),
         ("Ant PPO launch to first progress line: cold / compile cached", "–",
          f"{launch['cold']['first_line_s']:.0f} s / {launch['cached']['first_line_s']:.0f} s",
          "first_minute"),

@@ -34,7 +34,7 @@ def score_run(run_dir: str, episodes: int, seed: int = 0) -> dict:
     start = time.perf_counter()
     rows = reference.compare(rc.env, lambda obs: learner.act(params, obs), episodes, seed)
     out = {
-        "run": f"{rc.env.name} / {rc.algo_name}",
+        "run": f"{rc.env.name} / {rc.algo_name}, seed {rc.seed}",
         "run_dir": str(run_dir),
         "env_steps": int(state.env_steps),
         "episodes": episodes,

@@ -2,6 +2,7 @@
 
     python -m experiments.sb3_compare                                  # 4 envs x 3 learners x 300 s (~70 min)
     python -m experiments.sb3_compare --envs hopper --seconds 900
+    python -m experiments.sb3_compare --envs humanoid --merge          # re-measure one env, keep the others
     python -m experiments.sb3_compare --quick --out DIR                # hopper, seconds per learner, for CI
     python -m experiments.sb3_compare --from-json experiments/results/sb3_compare.json  # the page again
 
@@ -240,6 +241,9 @@ def main(argv=None) -> None:
     )
     parser.add_argument("--out", default=str(results.RESULTS))
     parser.add_argument("--from-json", help="re-summarise a saved record instead of training")
+    parser.add_argument(
+        "--merge", action="store_true", help="replace these envs' rows in the saved record, keep the others"
+    )
     args = parser.parse_args(argv)
     if args.quick:
         args.envs, args.seconds, args.snapshots, args.episodes = ["hopper"], 15.0, 2, 2
@@ -252,9 +256,28 @@ def main(argv=None) -> None:
                   "fastrl": results.fastrl_version(), "sb3_versions": sb3_versions(),
                   "seconds": args.seconds, "episodes": args.episodes, "seeds": args.seed,
                   "runs": train_all(args)}  # fmt: skip
+        if args.merge:
+            result = merged(pathlib.Path(args.out) / f"{stem}.json", result)
     result["summary"] = {env: summarize(r) for env, r in result["runs"].items()}
     results.save(args.out, stem, result, render(result), plot(result))
     print(render(result))
+
+
+def merged(path: pathlib.Path, new: dict) -> dict:
+    """The saved record at ``path`` with ``new``'s envs measured anew (same budget and episodes),
+    the page's header kept and a note saying which envs came from which run."""
+    if not path.exists():
+        return new
+    old = results.load(path)
+    for key in ("seconds", "episodes"):
+        if old[key] != new[key]:
+            raise SystemExit(f"--merge: {path} has {key}={old[key]}, this run {new[key]}; they must match")
+    envs = list(new["runs"])
+    runs = {env: new["runs"].get(env) or old["runs"][env] for env in ENVS if env in {*old["runs"], *envs}}
+    note = (f"{', '.join(envs)}: measured again on {results.today()}, fastrl {new['fastrl']}, "
+            f"{new['sb3_versions']}, by `{new['command']}`; the other envs are from the command "
+            "above.")  # fmt: skip
+    return {**old, "runs": runs, "note": note}
 
 
 def train_all(args) -> dict[str, dict[str, list[dict]]]:

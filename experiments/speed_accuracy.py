@@ -1,18 +1,18 @@
-"""Speed vs accuracy of fastrl's physics knobs on five models, with MuJoCo C on the same axes.
+"""Speed vs accuracy of fastrl's physics knobs on six models, with MuJoCo C on the same axes.
 
-    python -m experiments.speed_accuracy                         # all five models, ~45 min on 2 cores
+    python -m experiments.speed_accuracy                         # all six models, ~1 h on 2 cores
     python -m experiments.speed_accuracy --models ant hopper     # a subset
     python -m experiments.speed_accuracy --models ant --merge    # add to the committed models
     python -m experiments.speed_accuracy --quick                 # tiny, for CI
     python -m experiments.speed_accuracy --brax-only             # re-measure Brax's points only
     python -m experiments.speed_accuracy --from-json             # re-mark the shipped settings
 
-Models: the Ant, HalfCheetah, Hopper and Humanoid (contacts) and the InvertedDoublePendulum (no
-contacts; its cart's joint limit, its only constraint, is not reached within its horizon). Each
-keeps its env's control step ``dt`` (frame_skip x the asset's timestep) across all settings, and
-every setting simulates the same sequences: start states from the env's ``reset`` with fixed
-keys, and uniform random controls in the actuators' ctrlrange, one per control step, held over
-its substeps.
+Models: the Ant, HalfCheetah, Hopper, Humanoid and HumanoidStandup (the Humanoid's model lying on
+its back; contacts) and the InvertedDoublePendulum (no contacts; its cart's joint limit, its only
+constraint, is not reached within its horizon). Each keeps its env's control step ``dt``
+(frame_skip x the asset's timestep) across all settings, and every setting simulates the same
+sequences: start states from the env's ``reset`` with fixed keys, and uniform random controls in
+the actuators' ctrlrange, one per control step, held over its substeps.
 
 Swept: fastrl's integrator (euler, rk4) x timestep (dt / substeps, substeps 1, 2, 4, frame_skip
 and twice it) x constraint-solver iterations (2, 3, 5, 8; the loader default only for the
@@ -91,7 +91,7 @@ from fastrl.envs.base import ASSETS
 from fastrl.xla_flags import peer_environ
 
 ROOT = results.ROOT
-MODELS = ("ant", "halfcheetah", "hopper", "humanoid", "inverted_double_pendulum")
+MODELS = ("ant", "halfcheetah", "hopper", "humanoid", "humanoidstandup", "inverted_double_pendulum")
 CONTACT_FREE = ("inverted_double_pendulum",)
 # Simulated seconds per sequence. Measured on these 16 sequences, the floor against MuJoCo C's
 # own error at the asset's timestep (x frame_skip) and half of it (x 2 frame_skip) is, for the
@@ -100,7 +100,10 @@ CONTACT_FREE = ("inverted_double_pendulum",)
 # and 9e-5 at 0.25 s; the Humanoid 1.1e-4 vs 2e-3 and 1e-3 at 0.5 s (2.4e-3 vs 1e-2 and 5e-3 at
 # 1 s). The pendulum is a smooth ODE until its cart reaches the joint limit, which none of 256
 # sequences does by 0.25 s (4 by 0.3 s): within 0.2 s its floor is 5e-12 against 9e-7.
-HORIZON_S = {"ant": 0.3, "halfcheetah": 1.0, "hopper": 0.25, "humanoid": 0.5, "inverted_double_pendulum": 0.2}
+HORIZON_S = {
+    "ant": 0.3, "halfcheetah": 1.0, "hopper": 0.25, "humanoid": 0.5, "humanoidstandup": 0.5,
+    "inverted_double_pendulum": 0.2,
+}  # fmt: skip
 ITERATIONS = (2, 3, 5, 8)
 BATCH = 1024  # speed
 SEQUENCES = 16  # accuracy: sequences compared with the reference

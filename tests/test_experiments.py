@@ -282,6 +282,22 @@ def test_sb3_compare_time_to_the_same_return():
     assert out["learners"]["sb3_ppo"]["seconds_to_target"] == 90
 
 
+def test_sb3_compare_merge_replaces_only_the_envs_measured_again(tmp_path):
+    from experiments.sb3_compare import merged
+
+    record = {"machine": "m", "command": "first", "fastrl": "aaa", "sb3_versions": "v", "seconds": 300.0,
+              "episodes": 10, "seeds": 0, "runs": {"hopper": {"old": 1}, "humanoid": {"old": 2}}}  # fmt: skip
+    path = tmp_path / "sb3_compare.json"
+    path.write_text(json.dumps(record))
+    new = {**record, "command": "second", "fastrl": "bbb", "runs": {"humanoid": {"new": 3}}}
+    out = merged(path, new)
+    assert out["runs"] == {"hopper": {"old": 1}, "humanoid": {"new": 3}}
+    assert out["command"] == "first" and "humanoid: measured again" in out["note"] and "bbb" in out["note"]
+    with pytest.raises(SystemExit, match="seconds"):
+        merged(path, {**new, "seconds": 60.0})
+    assert merged(tmp_path / "missing.json", new) is new
+
+
 def test_time_to_return_quick(tmp_path):
     stem = "time_to_return_inverted_pendulum"
     result = _run_quick("time_to_return", tmp_path, f"{stem}_quick.json")
