@@ -104,7 +104,7 @@ def score_fastrl(snaps: list[dict], episodes: int, seed: int) -> None:
 
     for snap in snaps:
         policy = load_policy(*snap["where"])  # one restore: the env comes from its saved config
-        env = RunConfig.from_dict(policy.run_config).env.make()
+        env = reference.reference_env(RunConfig.from_dict(policy.run_config).env)
         scores = reference.evaluate(env, policy, episodes, jax.random.PRNGKey(1000 + seed), "gymnasium")
         snap["returns"], snap["lengths"] = scores.returns.tolist(), scores.lengths.tolist()
 

@@ -93,13 +93,14 @@ from fastrl.xla_flags import peer_environ
 ROOT = results.ROOT
 MODELS = ("ant", "halfcheetah", "hopper", "humanoid", "humanoidstandup", "inverted_double_pendulum")
 CONTACT_FREE = ("inverted_double_pendulum",)
-# Simulated seconds per sequence. Measured on these 16 sequences, the floor against MuJoCo C's
-# own error at the asset's timestep (x frame_skip) and half of it (x 2 frame_skip) is, for the
-# Ant, 1.5e-3 vs 1.8e-2 and 7e-3 m at 0.3 s (2e-2 vs 7e-2 and 6e-2 at 0.6 s); the HalfCheetah
-# 3e-3 vs 1.4e-1 and 3e-2 at 1 s (1.4e-2 vs 3e-1 and 1.1e-1 at 2 s); the Hopper 1.2e-5 vs 1.4e-4
-# and 9e-5 at 0.25 s; the Humanoid 1.1e-4 vs 2e-3 and 1e-3 at 0.5 s (2.4e-3 vs 1e-2 and 5e-3 at
-# 1 s). The pendulum is a smooth ODE until its cart reaches the joint limit, which none of 256
-# sequences does by 0.25 s (4 by 0.3 s): within 0.2 s its floor is 5e-12 against 9e-7.
+# Simulated seconds per sequence. Measured on these 16 sequences, the floor against MuJoCo C's own
+# error at the asset's timestep (x frame_skip) and half of it (x 2 frame_skip) is, for the Ant,
+# 1.5e-3 vs 1.8e-2 and 7e-3 m at 0.3 s (2e-2 vs 7e-2 and 6e-2 at 0.6 s); the HalfCheetah 3e-3 vs
+# 1.4e-1 and 3e-2 at 1 s (1.4e-2 vs 3e-1 and 1.1e-1 at 2 s); the Hopper 1.2e-5 vs 1.4e-4 and 9e-5
+# at 0.25 s; the Humanoid 1.1e-4 vs 2e-3 and 1e-3 at 0.5 s (2.4e-3 vs 1e-2 and 5e-3 at 1 s);
+# HumanoidStandup, lying on the floor, 6.9e-4 vs 3.7e-3 at 0.5 s (5x, not 10x). The pendulum is a
+# smooth ODE until its cart reaches the joint limit, which none of 256 sequences does by 0.25 s (4
+# by 0.3 s): within 0.2 s its floor is 5e-12 against 9e-7.
 HORIZON_S = {
     "ant": 0.3, "halfcheetah": 1.0, "hopper": 0.25, "humanoid": 0.5, "humanoidstandup": 0.5,
     "inverted_double_pendulum": 0.2,

@@ -188,6 +188,26 @@ def reference_label(env: Env, simulator: str | None = None, integrator: str | No
     return f"{where}, MuJoCo {mujoco.__version__} C, {integrator}{_substeps_label(env)}"
 
 
+def _asset_substeps(env_config, env: Env) -> Env | None:
+    """The env at the asset's physics when ``env_config`` only splits the same control step into
+    other substeps (the Humanoid's 0.00375 s x 4 for 0.003 s x 5), else None."""
+    asset = dataclasses.replace(
+        env_config, integrator=None, solver_iterations=None, timestep=None, frame_skip=None
+    )
+    if (env_config.timestep, env_config.frame_skip) == (asset.timestep, asset.frame_skip):
+        return None
+    asset_env = asset.make()
+    return asset_env if np.isclose(env.dt, asset_env.dt, rtol=1e-6) else None
+
+
+def reference_env(env_config) -> Env:
+    """The env whose reference score stands for a run's (``evaluate``'s ``env`` argument): the
+    run's own, or the asset's substeps for a run that splits the same control step differently
+    (Gymnasium's envs take no timestep override), as ``compare`` scores it."""
+    env = env_config.make()
+    return _asset_substeps(env_config, env) or env
+
+
 def compare(
     env_config,
     policy: Callable[[jax.Array], jax.Array],
@@ -220,14 +240,13 @@ def compare(
         fastrl_scores = fastrl_evaluate(env, policy, episodes, key)
     rows = {"fastrl": (f"fastrl ({physics_label(env)}: the run's)", fastrl_scores)}
     asset_config = dataclasses.replace(env_config, integrator=None, solver_iterations=None)
-    substeps = dataclasses.replace(asset_config, timestep=None, frame_skip=None)
-    asset_env, resampled = env, False
-    if substeps != asset_config:  # the same control step in other substeps: comparable physics
-        asset_env = substeps.make()
-        resampled = bool(np.isclose(env.dt, asset_env.dt, rtol=1e-6))
-        asset_config = substeps if resampled else asset_config
+    substeps = _asset_substeps(env_config, env)  # the same control step in other substeps
+    resampled = substeps is not None
+    if resampled:
+        asset_config = dataclasses.replace(asset_config, timestep=None, frame_skip=None)
+    asset_env = env
     if asset_config != env_config:
-        asset_env = asset_env if resampled else asset_config.make()
+        asset_env = substeps if resampled else asset_config.make()
         integrator = physics.Integrator(env.model.integrator).name.lower()
         if env.model.integrator != asset_env.model.integrator or resampled:
             scores = evaluate(env, policy, episodes, key, "mujoco", integrator)

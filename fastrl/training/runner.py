@@ -855,10 +855,11 @@ def _progress(row: dict, total_steps: int, elapsed: float, train_return: float) 
     rate = row.get("perf/env_steps_per_s", float("nan"))
     eta = (total_steps - steps) / rate if rate and rate > 0 else float("nan")
     bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
-    ret = train_return  # nan until an episode has ended
+    # nan until a training episode has ended (e.g. the first 1000 steps of each env): say so
+    ret = f"train return {train_return:9.2f}" if math.isfinite(train_return) else "no episode ended yet"
     return (
         f"[{bar}] {100 * frac:5.1f}% {steps:>11,d} steps | {rate:>9,.0f} steps/s | "
-        f"train return {ret:9.2f} | {elapsed:7.0f}s elapsed, ETA {eta:6.0f}s"
+        f"{ret} | {elapsed:7.0f}s elapsed, ETA {eta:6.0f}s"
     )
 
 

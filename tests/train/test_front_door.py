@@ -367,3 +367,12 @@ def test_cli_xla_flags_per_learner(monkeypatch):
     xla_flags.apply()
     train._set_cpu_flags(sac)
     assert os.environ["XLA_FLAGS"].split() == [emitters, ynn]
+
+
+def test_progress_line_says_when_no_training_episode_has_ended_instead_of_printing_nan():
+    from fastrl.training.runner import _progress
+
+    row = {"env_steps": 20480, "perf/env_steps_per_s": 1600.0}
+    waiting = _progress(row, 10_000_000, 13.0, float("nan"))
+    assert "no episode ended yet" in waiting and "nan" not in waiting
+    assert "train return    123.46" in _progress(row, 10_000_000, 13.0, 123.456)
