@@ -191,11 +191,11 @@ def reference_label(env: Env, simulator: str | None = None, integrator: str | No
 def _asset_substeps(env_config, env: Env) -> Env | None:
     """The env at the asset's physics when ``env_config`` only splits the same control step into
     other substeps (the Humanoid's 0.00375 s x 4 for 0.003 s x 5), else None."""
+    if env_config.timestep is None and env_config.frame_skip is None:
+        return None
     asset = dataclasses.replace(
         env_config, integrator=None, solver_iterations=None, timestep=None, frame_skip=None
     )
-    if (env_config.timestep, env_config.frame_skip) == (asset.timestep, asset.frame_skip):
-        return None
     asset_env = asset.make()
     return asset_env if np.isclose(env.dt, asset_env.dt, rtol=1e-6) else None
 
@@ -205,7 +205,8 @@ def reference_env(env_config) -> Env:
     run's own, or the asset's substeps for a run that splits the same control step differently
     (Gymnasium's envs take no timestep override), as ``compare`` scores it."""
     env = env_config.make()
-    return _asset_substeps(env_config, env) or env
+    resampled = _asset_substeps(env_config, env)
+    return env if resampled is None else resampled
 
 
 def compare(
@@ -239,21 +240,19 @@ def compare(
     if fastrl_scores is None:
         fastrl_scores = fastrl_evaluate(env, policy, episodes, key)
     rows = {"fastrl": (f"fastrl ({physics_label(env)}: the run's)", fastrl_scores)}
+    resampled = _asset_substeps(env_config, env)  # the same control step in other substeps
     asset_config = dataclasses.replace(env_config, integrator=None, solver_iterations=None)
-    substeps = _asset_substeps(env_config, env)  # the same control step in other substeps
-    resampled = substeps is not None
-    if resampled:
-        asset_config = dataclasses.replace(asset_config, timestep=None, frame_skip=None)
-    asset_env = env
-    if asset_config != env_config:
-        asset_env = substeps if resampled else asset_config.make()
+    asset_env = resampled
+    if resampled is None and asset_config != env_config:
+        asset_env = asset_config.make()
+    if asset_env is not None:
         integrator = physics.Integrator(env.model.integrator).name.lower()
-        if env.model.integrator != asset_env.model.integrator or resampled:
+        if env.model.integrator != asset_env.model.integrator or resampled is not None:
             scores = evaluate(env, policy, episodes, key, "mujoco", integrator)
             rows["mujoco_run"] = (f"MuJoCo C ({reference_label(env, 'mujoco', integrator)})", scores)
         label = f"fastrl ({physics_label(asset_env)}: the asset's)"
         rows["fastrl_asset"] = (label, fastrl_evaluate(asset_env, policy, episodes, key))
-    ref_env = asset_env if resampled else env
+    ref_env = env if resampled is None else resampled
     ref = evaluate(ref_env, policy, episodes, key)
     rows["reference"] = (f"reference ({reference_label(ref_env, ref.simulator)})", ref)
     return rows
