@@ -253,6 +253,8 @@ class RunConfig:
     logger: LoggerConfig
     checkpoint: CheckpointConfig
     seed: int = 0
+    # A run folder whose learned weights a new run starts from (``init_from``); None: fresh.
+    init_from: str | None = None
 
     @classmethod
     def from_dict(cls, cfg: Mapping[str, Any]) -> RunConfig:
@@ -264,6 +266,9 @@ class RunConfig:
         seed = cfg.get("seed", 0)
         if isinstance(seed, bool) or not isinstance(seed, int):
             raise ConfigError(f"seed={seed!r} should be an int")
+        init_from = cfg.get("init_from")
+        if init_from is not None and (isinstance(init_from, bool) or not isinstance(init_from, str)):
+            raise ConfigError(f"init_from={init_from!r} should be a run folder's path (or null)")
         return cls(
             env=build(EnvConfig, cfg["env"], "env"),
             algo_name=name,
@@ -273,6 +278,7 @@ class RunConfig:
             logger=build(LoggerConfig, cfg.get("logger", {}), "logger"),
             checkpoint=build(CheckpointConfig, cfg.get("checkpoint", {}), "checkpoint"),
             seed=seed,
+            init_from=init_from,
         )
 
     def to_dict(self) -> dict:
@@ -285,6 +291,7 @@ class RunConfig:
             "logger": dataclasses.asdict(self.logger),
             "checkpoint": dataclasses.asdict(self.checkpoint),
             "seed": self.seed,
+            "init_from": self.init_from,
         }
         return _jsonable(out)
 

@@ -1,10 +1,14 @@
-"""Trained policies from run folders: ``fastrl.load_policy(RUN_DIR)``."""
+"""Trained policies from run folders: ``fastrl.load_policy(RUN_DIR)``, and the learned weights
+a new run starts from (``init_from=RUN_DIR``: fine-tuning a policy on a changed task, e.g. a
+flat-ground walker on rough ground, as Brax's ``restore_checkpoint_path`` does)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 
 from fastrl import agents
 from fastrl.training import scale
@@ -12,9 +16,16 @@ from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointE
 from fastrl.training.config import RunConfig
 
 __all__ = [
+    "LEARNED_FIELDS",
     "load_policy",
     "load_run",
+    "start_from",
 ]
+
+# The fields of a learner's state that ``init_from`` carries into a new run: network weights
+# (PPO's policy and value, SAC's actor, critics and temperature, ES's parameter vector) and the
+# observation normaliser. The optimiser state, envs, replay buffer, RNG and counters start fresh.
+LEARNED_FIELDS = ("params", "theta", "obs_stats")
 
 
 def load_run(run_dir: str | Path, step: int | None = None, agent: int | str | None = None):
@@ -94,3 +105,49 @@ def load_policy(run_dir: str | Path, step: int | None = None, agent: int | str |
 
     policy.run_config = rc.to_dict()
     return policy
+
+
+def start_from(state, source: str | Path, algo_name: str, n_agents: int = 1):
+    """``state`` (a new run's initial learner state) with the learned fields of ``source``'s
+    newest readable checkpoint: ``LEARNED_FIELDS``, copied into every agent of a batch run.
+
+    ``source`` is a run folder (of a batch run: an agent's folder ``RUN_DIR/agents/<tag>``).
+    Returns the state and a line saying what was taken. Raises ``CheckpointError`` naming the
+    problem when the source is another algorithm, or when its weights or observation size do not
+    fit this run's (network sizes, or an env with another observation size)."""
+    rc, _, _, saved = load_run(source)
+    if rc.algo_name != algo_name:
+        raise CheckpointError(
+            f"init_from={source}: that run trained {rc.algo_name}, this one {algo_name}; a run starts "
+            "only from weights of its own algorithm"
+        )
+    taken, wrong = {}, []
+    for name in (f for f in LEARNED_FIELDS if hasattr(state, f)):
+        mine, theirs = getattr(state, name), getattr(saved, name)
+        ours = jax.tree_util.tree_flatten_with_path(mine)
+        their_leaves, their_def = jax.tree_util.tree_flatten(theirs)
+        if jax.tree.structure(mine) != their_def:
+            wrong.append(f"{name}: other structure")
+            continue
+        out = []
+        for (path, x), y in zip(ours[0], their_leaves, strict=True):
+            want = x.shape[1:] if n_agents > 1 else x.shape
+            if y.shape != want:
+                wrong.append(f"{name}{jax.tree_util.keystr(path)}: saved {y.shape} -> now {want}")
+            else:
+                out.append(jnp.broadcast_to(jnp.asarray(y, x.dtype), x.shape))
+        if len(out) < len(their_leaves):
+            continue
+        taken[name] = jax.tree_util.tree_unflatten(ours[1], out)
+    if wrong:
+        raise CheckpointError(
+            f"init_from={source}: its learned weights do not fit this run (same network.* "
+            "settings and an env with the same observation and action sizes are needed):\n  "
+            + "\n  ".join(wrong[:8])
+            + ("\n  ..." if len(wrong) > 8 else "")
+        )
+    line = (
+        f"started from {Path(source)}'s {', '.join(taken)} ({rc.env.name} / {rc.algo_name} at "
+        f"{int(saved.env_steps):,d} env steps); optimiser, envs and counters fresh"
+    )
+    return dataclasses.replace(state, **taken), line

@@ -46,7 +46,7 @@ from fastrl import agents, compile_cache, devices, reference, viewer
 from fastrl.agents.base import Learner
 from fastrl.devices import to_host
 from fastrl.report import plot_run
-from fastrl.training import scale
+from fastrl.training import policy, scale
 from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError, quiet_library_logs
 from fastrl.training.config import RunConfig
 
@@ -363,6 +363,9 @@ def _start(setup: _Setup, ckpt: Checkpointer, run_dir: Path, resume: bool, resum
     jit_init = jax.jit(init) if setup.shardings is None else jax.jit(init, out_shardings=setup.shardings)
     state = jit_init(setup.init_key)
     if not resume:
+        if setup.cfg.init_from is not None:
+            state, line = policy.start_from(state, setup.cfg.init_from, setup.cfg.algo_name, setup.agents.n)
+            print(f"[fastrl] {line}", flush=True)
         return state, _Progress.fresh(setup.agents.n)
     state, meta = ckpt.restore_newest(lambda step: ckpt.restore(state, setup.config, step), resume_step)
     progress = _Progress.from_meta(meta, setup.agents.n)

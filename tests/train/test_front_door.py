@@ -190,6 +190,47 @@ def test_corrupt_or_incompatible_checkpoint_gives_a_clear_error(tmp_path):
     assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["1"]
 
 
+def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path, capsys):
+    from fastrl.policy import load_run
+    from fastrl.training.policy import start_from
+
+    source = tmp_path / "source"
+    run(compose_cfg([*QUICK_RESUME, f"run_dir={source}", "train.stop_after_chunks=1"]))
+    _, _, learner, saved = load_run(source)
+    # The learned fields are the source's, in every agent of a batch; the rest stays fresh.
+    for n in (1, 2):
+        keys = jax.random.split(jax.random.PRNGKey(7), n)
+        fresh = learner.init(keys[0]) if n == 1 else jax.vmap(learner.init)(keys)
+        state, line = start_from(fresh, source, "ppo", n)
+        assert "params, obs_stats" in line and "at 256 env steps" in line
+        for name in ("params", "obs_stats"):
+            for x, y in zip(jax.tree.leaves(getattr(state, name)), jax.tree.leaves(getattr(saved, name)),
+                            strict=True):  # fmt: skip
+                np.testing.assert_array_equal(x, np.broadcast_to(y, x.shape))
+        for x, y in zip(jax.tree.leaves(state.opt_state), jax.tree.leaves(fresh.opt_state), strict=True):
+            np.testing.assert_array_equal(x, y)
+        assert int(np.max(state.env_steps)) == 0
+    # The front door: a new run that records where it started; a resume of it ignores the key.
+    out = run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}/tuned", f"init_from={source}"]))
+    assert out["status"] == "done" and out["chunks"] == 4
+    started = f"[fastrl] started from {source}'s params, obs_stats (inverted_pendulum / ppo"
+    assert started in capsys.readouterr().out
+    import json
+
+    assert json.loads((tmp_path / "tuned" / "config.json").read_text())["init_from"] == str(source)
+    # Weights that do not fit, or of another algorithm: a clear error, and nothing written.
+    with pytest.raises(CheckpointError, match=r"params\['policy'\].*saved \(16,\) -> now \(8,\)"):
+        narrow = "network.policy_hidden=[8]"
+        run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}/a", f"init_from={source}", narrow]))
+    with pytest.raises(CheckpointError, match="that run trained ppo, this one sac"):
+        run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}/b", f"init_from={source}", "algo=sac"]))
+    with pytest.raises(CheckpointError, match="not a fastrl run folder"):
+        run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}/c", f"init_from={tmp_path}/none"]))
+    assert not any((tmp_path / d / "config.json").exists() for d in "abc")
+    with pytest.raises(ConfigError, match="init_from=3 should be a run folder"):
+        typed(["init_from=3"])
+
+
 def test_a_diverging_run_is_reported_and_never_saved(tmp_path, capsys):
     # Rewards scaled past float32's range make the value loss infinite in the first chunk.
     out = run(compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}", "algo.reward_scaling=1e38"]))
