@@ -4,7 +4,6 @@ flat-ground walker on rough ground, as Brax's ``restore_checkpoint_path`` does).
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import jax
@@ -107,14 +106,16 @@ def load_policy(run_dir: str | Path, step: int | None = None, agent: int | str |
     return policy
 
 
-def start_from(state, source: str | Path, algo_name: str, n_agents: int = 1):
-    """``state`` (a new run's initial learner state) with the learned fields of ``source``'s
-    newest readable checkpoint: ``LEARNED_FIELDS``, copied into every agent of a batch run.
+def start_from(like, source: str | Path, algo_name: str, n_agents: int = 1):
+    """The learned fields (``LEARNED_FIELDS``) of ``source``'s newest readable checkpoint, shaped
+    as they are in ``like`` (a new run's learner state, or its ``jax.eval_shape``): every agent of
+    a batch run gets the same copy.
 
     ``source`` is a run folder (of a batch run: an agent's folder ``RUN_DIR/agents/<tag>``).
-    Returns the state and a line saying what was taken. Raises ``CheckpointError`` naming the
-    problem when the source is another algorithm, or when its weights or observation size do not
-    fit this run's (network sizes, or an env with another observation size)."""
+    Returns ``{field: tree}`` (for ``dataclasses.replace`` on the new state) and a line saying
+    what was taken. Raises ``CheckpointError`` naming the problem when the source is another
+    algorithm, or when its weights do not fit (other network sizes, or an env with another
+    observation or action size)."""
     rc, _, _, saved = load_run(source)
     if rc.algo_name != algo_name:
         raise CheckpointError(
@@ -122,23 +123,24 @@ def start_from(state, source: str | Path, algo_name: str, n_agents: int = 1):
             "only from weights of its own algorithm"
         )
     taken, wrong = {}, []
-    for name in (f for f in LEARNED_FIELDS if hasattr(state, f)):
-        mine, theirs = getattr(state, name), getattr(saved, name)
-        ours = jax.tree_util.tree_flatten_with_path(mine)
-        their_leaves, their_def = jax.tree_util.tree_flatten(theirs)
-        if jax.tree.structure(mine) != their_def:
+    for name in (f for f in LEARNED_FIELDS if hasattr(like, f)):
+        ours, treedef = jax.tree_util.tree_flatten_with_path(getattr(like, name))
+        theirs, their_def = jax.tree_util.tree_flatten(getattr(saved, name))
+        if treedef != their_def:
             wrong.append(f"{name}: other structure")
             continue
-        out = []
-        for (path, x), y in zip(ours[0], their_leaves, strict=True):
-            want = x.shape[1:] if n_agents > 1 else x.shape
-            if y.shape != want:
-                wrong.append(f"{name}{jax.tree_util.keystr(path)}: saved {y.shape} -> now {want}")
-            else:
-                out.append(jnp.broadcast_to(jnp.asarray(y, x.dtype), x.shape))
-        if len(out) < len(their_leaves):
-            continue
-        taken[name] = jax.tree_util.tree_unflatten(ours[1], out)
+        misfits = [
+            f"{name}{jax.tree_util.keystr(path)}: saved {y.shape} -> now {want}"
+            for (path, x), y in zip(ours, theirs, strict=True)
+            if y.shape != (want := x.shape[1:] if n_agents > 1 else x.shape)
+        ]
+        wrong += misfits
+        if not misfits:
+            leaves = [
+                jnp.broadcast_to(jnp.asarray(y, x.dtype), x.shape)
+                for (_, x), y in zip(ours, theirs, strict=True)
+            ]
+            taken[name] = jax.tree_util.tree_unflatten(treedef, leaves)
     if wrong:
         raise CheckpointError(
             f"init_from={source}: its learned weights do not fit this run (same network.* "
@@ -150,4 +152,4 @@ def start_from(state, source: str | Path, algo_name: str, n_agents: int = 1):
         f"started from {Path(source)}'s {', '.join(taken)} ({rc.env.name} / {rc.algo_name} at "
         f"{int(saved.env_steps):,d} env steps); optimiser, envs and counters fresh"
     )
-    return dataclasses.replace(state, **taken), line
+    return taken, line

@@ -111,8 +111,16 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
     """The loop: one compiled chunk, then the host's pieces, until the budget or a stop."""
     clock = _Clock(cfg.train.max_seconds)
     setup = _setup(cfg)
+    weights = None
+    if cfg.init_from is not None and not resume:  # before compiling: weights that misfit fail fast
+        weights, line = policy.start_from(setup.abstract, cfg.init_from, cfg.algo_name, setup.agents.n)
+        print(f"[fastrl] {line}", flush=True)
     compiling = _compile_chunk(setup)  # XLA compiles it on a worker thread while the state is made
-    state, progress = _start(setup, ckpt, run_dir, resume, resume_step)
+    try:
+        state, progress = _start(setup, ckpt, run_dir, resume, resume_step, weights)
+    except BaseException:
+        compiling.wait()  # a process that exits while XLA compiles on another thread aborts
+        raise
     _claim_folder(run_dir, setup.config, record)  # only now does anything get written into it
     state = _place(setup, state)
     program = compiling.result()
@@ -356,16 +364,20 @@ def _open_checkpoints(cfg: RunConfig, run_dir: Path, resume: bool) -> Checkpoint
     return ckpt
 
 
-def _start(setup: _Setup, ckpt: Checkpointer, run_dir: Path, resume: bool, resume_step: int | None):
-    """The state and progress the run starts from: fresh, or restored from a checkpoint (newer
+def _start(setup: _Setup, ckpt: Checkpointer, run_dir: Path, resume: bool, resume_step: int | None,
+           weights: dict | None = None):  # fmt: skip
+    """The state and progress the run starts from: fresh (with ``weights``, the learned fields
+    of ``init_from``, in place of the initial ones), or restored from a checkpoint (newer
     checkpoints than the one resumed are set aside)."""
     init = setup.learner.init
     jit_init = jax.jit(init) if setup.shardings is None else jax.jit(init, out_shardings=setup.shardings)
     state = jit_init(setup.init_key)
     if not resume:
-        if setup.cfg.init_from is not None:
-            state, line = policy.start_from(state, setup.cfg.init_from, setup.cfg.algo_name, setup.agents.n)
-            print(f"[fastrl] {line}", flush=True)
+        if weights:  # laid out as the fresh leaves (a run on several devices shards its state)
+            place = lambda new, old: jax.device_put(new, old.sharding)  # noqa: E731
+            state = dataclasses.replace(
+                state, **{k: jax.tree.map(place, v, getattr(state, k)) for k, v in weights.items()}
+            )
         return state, _Progress.fresh(setup.agents.n)
     state, meta = ckpt.restore_newest(lambda step: ckpt.restore(state, setup.config, step), resume_step)
     progress = _Progress.from_meta(meta, setup.agents.n)
@@ -421,6 +433,10 @@ class _Compiling:
             self._out.append(_Program(run, time.perf_counter() - t0, f"{traced_note}, {cache_note}"))
         except BaseException as e:  # handed to the main thread by result()
             self._out.append(e)
+
+    def wait(self) -> None:
+        """Waits for the compile to end (whatever its outcome), so the process can exit cleanly."""
+        self._thread.join()
 
     def result(self) -> _Program:
         self._thread.join()

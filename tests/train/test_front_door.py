@@ -1,5 +1,6 @@
 """The training front door: config composition and errors, GAE, runs, checkpoints, resume."""
 
+import dataclasses
 import os
 import shutil
 import signal
@@ -201,7 +202,8 @@ def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path, capsys):
     for n in (1, 2):
         keys = jax.random.split(jax.random.PRNGKey(7), n)
         fresh = learner.init(keys[0]) if n == 1 else jax.vmap(learner.init)(keys)
-        state, line = start_from(fresh, source, "ppo", n)
+        weights, line = start_from(fresh, source, "ppo", n)
+        state = dataclasses.replace(fresh, **weights)
         assert "params, obs_stats" in line and "at 256 env steps" in line
         for name in ("params", "obs_stats"):
             for x, y in zip(jax.tree.leaves(getattr(state, name)), jax.tree.leaves(getattr(saved, name)),

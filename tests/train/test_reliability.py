@@ -111,6 +111,18 @@ def test_command_line_runs_load_anywhere_and_rejected_starts_change_nothing(tmp_
     assert not (tmp_path / "runs").exists()
     assert "train.total_env_steps=1536" in (run_dir / ".hydra" / "overrides.yaml").read_text()
 
+    # init_from=PATH: a new run on 2 devices starts from the run's weights (saved on 1 device);
+    # weights that do not fit are refused by name, exit 2, nothing written.
+    tuned = tmp_path / "tuned"
+    args = ["fastrl.train", *QUICK_CLI, f"init_from={run_dir}", "train.stop_after_chunks=1"]
+    out = _cli([*args, f"hydra.run.dir={tuned}"], tmp_path, _env(FASTRL_CPU_DEVICES="2"))
+    assert f"started from {run_dir}'s params, obs_stats" in out.stdout and "on 2 cpu devices" in out.stdout
+    bad = _cli(
+        [*args, f"hydra.run.dir={tmp_path}/narrow", "network.value_hidden=[8]"], tmp_path, _env(), ok=False
+    )
+    assert bad.returncode == 2 and "saved (16,) -> now (8,)" in bad.stderr and "Traceback" not in bad.stderr
+    assert not (tmp_path / "narrow").exists() and not (tmp_path / "runs").exists()
+
 
 def test_two_runs_started_in_the_same_second_get_their_own_folders(tmp_path):
     # Both also share a fresh persistent compilation cache (FASTRL_COMPILE_CACHE), writing the
