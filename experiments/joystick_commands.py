@@ -17,6 +17,10 @@ Sim-to-sim: the same policy drives MuJoCo C (the ``mujoco`` bindings) from the f
 ``--runs`` of the same reset states, its observation computed from ``mjData``
 (``experiments/sim_to_sim.py``). Falls end an episode in both; their count is reported.
 
+``--env NAME`` holds the commands in another env with the same observations instead of the
+run's own (``--env go1_joystick_rough`` for a go1_joystick policy: the flat-ground walker on
+rough ground), written as ``commands_<env>_from_<run's env>``.
+
 Writes ``experiments/results/commands_<env>.{md,json}``.
 """
 
@@ -60,16 +64,16 @@ def _side(env, episodes) -> dict:
     }
 
 
-def measure(run_dir: str, commands, n: int, runs: int, seconds: float) -> tuple[str, list[dict]]:
-    """The env's name and a row per command."""
+def measure(run_dir: str, commands, n: int, runs: int, seconds: float, env_name: str | None = None):
+    """The env's name and a row per command (in ``env_name``, None: the run's env)."""
     policy = fastrl.load_policy(run_dir)
-    base = sim_to_sim.nominal_env(policy)
+    base = sim_to_sim.nominal_env(policy, env_name=env_name)
     kicks = {"pushes": False} if "pushes" in RunConfig.from_dict(policy.run_config).env.options else {}
     steps, settle = int(round(seconds / base.dt)), int(round(SETTLE_S / base.dt))
     length = max(steps, base.episode_length)  # one episode holds the command for the whole time
     rows = []
     for command in commands:
-        env = sim_to_sim.nominal_env(policy, length, command=list(command), **kicks)
+        env = sim_to_sim.nominal_env(policy, length, env_name, command=list(command), **kicks)
         ours, start = sim_to_sim.in_fastrl(env, policy, n, steps, seed=0, skip=settle)
         first = jax.tree.map(lambda x: x[:runs], start)
         theirs = sim_to_sim.in_mujoco(env, policy, first, steps, seed=0, skip=settle)
@@ -89,7 +93,10 @@ def trained(run_dir: str) -> dict:
         ckpt.close()
     algo = meta["config"]["algo"]
     keep = ("num_envs", "unroll_length", "num_minibatches", "init_std", "entropy_cost", "entropy_estimate")
-    return {"env_steps": int(meta["env_steps"]), "algo": {k: algo.get(k) for k in keep}}
+    env = meta["config"]["env"]["name"]
+    start = meta["config"].get("init_from")
+    out = {"env": env, "env_steps": int(meta["env_steps"]), "algo": {k: algo.get(k) for k in keep}}
+    return out | ({"init_from": start} if start else {})
 
 
 def markdown(name: str, rows: list[dict], meta: dict) -> str:
@@ -104,9 +111,17 @@ def markdown(name: str, rows: list[dict], meta: dict) -> str:
             f"{meta['date']}, {meta['machine']}; fastrl {meta['fastrl']}; run `{meta['run_dir']}`. "
             f"Command: `{meta['command']}`.",
             "",
-            f"Policy: the run's newest checkpoint, {meta['trained']['env_steps']:,} env steps of PPO ("
+            f"Policy: the run's newest checkpoint, {meta['trained']['env_steps']:,} env steps of PPO"
+            + (f" on {meta['trained']['env']}" if meta["trained"].get("env", name) != name else "")
+            + " ("
             + ", ".join(f"{k} {v}" for k, v in meta["trained"]["algo"].items())
-            + ").",
+            + ")."
+            + (
+                f" The run started from the weights of `{meta['trained']['init_from']}` (`init_from`); "
+                "its env steps count from there."
+                if meta["trained"].get("init_from")
+                else ""
+            ),
             "",
             f"- **Tracking score (of 1.5) averaged over the commands: fastrl {ours:.2f}, MuJoCo C "
             f"{theirs:.2f} ({theirs / ours:.0%} of fastrl's); a robot standing still would score "
@@ -137,15 +152,17 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=6.0)
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
+    parser.add_argument("--env", help="hold the commands in this env instead of the run's own")
     args = parser.parse_args()
     commands = COMMANDS[:3:2] if args.quick else COMMANDS
     if args.quick:
         args.envs, args.runs, args.seconds = 4, 1, 1.5
-    name, rows = measure(args.run_dir, commands, args.envs, args.runs, args.seconds)
+    name, rows = measure(args.run_dir, commands, args.envs, args.runs, args.seconds, args.env)
     meta = {"date": results.today(), "machine": results.machine(), "command": results.command(),
             "fastrl": results.fastrl_version(), "run_dir": args.run_dir, "envs": args.envs,
             "runs": args.runs, "seconds": args.seconds, "trained": trained(args.run_dir)}  # fmt: skip
-    stem = f"commands_{name}" + ("_quick" if args.quick else "")
+    own = meta["trained"]["env"]
+    stem = f"commands_{name}" + (f"_from_{own}" if own != name else "") + ("_quick" if args.quick else "")
     results.save(args.out, stem, {"meta": meta, "rows": rows}, markdown(name, rows, meta))
     print(markdown(name, rows, meta))
 

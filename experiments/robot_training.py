@@ -74,13 +74,34 @@ def read_run(run_dir: pathlib.Path) -> dict:
     ]  # fmt: skip
     last = rows[-1]
     return {
-        "run_dir": str(run_dir), "env": env, "seed": config.get("seed"),
+        "run_dir": str(run_dir), "env": env, "seed": config.get("seed"), "from": _source(config),
         "num_envs": config["algo"].get("num_envs"), "compile_s": num(rows[0], "perf/compile_s"),
         "env_steps": int(float(last["env_steps"])), "wall_s": num(last, "wall_s"),
         "train_return": num(last, "train/episode_return"),
         "env_steps_per_s": num(last, "perf/env_steps_per_s"),
         "evals": evals,
     }  # fmt: skip
+
+
+def _source(config: dict) -> str | None:
+    """What a fine-tuned run (``init_from``) started from: the source's env and its env steps
+    (from the source's own metrics, when they can be read), or None for a run from scratch."""
+    source = config.get("init_from")
+    if source is None:
+        return None
+    path = pathlib.Path(source)
+    try:
+        env = json.loads((path / "config.json").read_text())["env"]["name"]
+        with open(path / "metrics.csv") as f:
+            steps = int(float(list(csv.DictReader(f))[-1]["env_steps"]))
+        return f"{env} at {steps / 1e6:.0f}M steps"
+    except (OSError, KeyError, IndexError, ValueError):
+        return str(path)
+
+
+def _task(run: dict) -> str:
+    source = run.get("from")
+    return run["env"] if source is None else f"{run['env']} (from {source})"
 
 
 def markdown(runs: list[dict]) -> str:
@@ -91,7 +112,8 @@ def markdown(runs: list[dict]) -> str:
         "deterministic policy's mean over the run's evaluation episodes, domain randomisation on. "
         "Playground: the mean evaluation return of its Brax PPO on MJX (8192 envs, 8 seeds), read off a "
         "published plot and interpolated at the same env steps (see `experiments/robot_training.py`); "
-        "`-` where no published point covers those steps.", "",
+        "`-` where no published point covers those steps. A task marked `(from ...)` was fine-tuned: started "
+        "from another run's weights (`init_from`), its env steps counted from that start.", "",
         "| task | env steps | training s | eval return | eval episode length | other eval metrics "
         "| Playground return at these steps |",
         "| --- | ---: | ---: | ---: | ---: | --- | ---: |",
@@ -102,7 +124,7 @@ def markdown(runs: list[dict]) -> str:
                               if k not in ("env_steps", "wall_s", "eval_return", "eval_length",
                                            "playground_return") and v is not None) or "-"  # fmt: skip
             ref = "-" if e["playground_return"] is None else f"{e['playground_return']:.1f}"
-            lines.append(f"| {run['env']} | {e['env_steps']:,} | {e['wall_s']:,.0f} | {e['eval_return']:.1f} "
+            lines.append(f"| {_task(run)} | {e['env_steps']:,} | {e['wall_s']:,.0f} | {e['eval_return']:.1f} "
                          f"| {e['eval_length']:.0f} | {other} | {ref} |")  # fmt: skip
     lines += ["", "| task | envs | env steps | training s (+ compile s) | env steps/s | last training return "
               "| Playground's whole run |", "| --- | ---: | ---: | ---: | ---: | ---: | --- |"]  # fmt: skip
@@ -113,7 +135,7 @@ def markdown(runs: list[dict]) -> str:
             if pg is None
             else f"{pg[1][-1][1]:.1f} at {pg[1][-1][0] / 1e6:.0f}M steps, {pg[2]:.0f} min (GPU)"
         )
-        lines.append(f"| {run['env']} | {run['num_envs']} | {run['env_steps']:,} | {run['wall_s']:,.0f} "
+        lines.append(f"| {_task(run)} | {run['num_envs']} | {run['env_steps']:,} | {run['wall_s']:,.0f} "
                      f"(+ {run['compile_s']:.0f}) | {run['env_steps_per_s']:,.0f} "
                      f"| {run['train_return']:.1f} | {whole} |")  # fmt: skip
     return "\n".join(lines)

@@ -38,13 +38,15 @@ from fastrl.training.config import RunConfig
 NOMINAL = {"friction": 0.0, "mass": 0.0, "gain": 0.0, "damping": 0.0}
 
 
-def nominal_env(policy, episode_length: int | None = None, **options):
-    """The run's env with domain randomisation and observation noise off, and ``options`` (e.g.
-    a held ``command``) over its own; ``episode_length`` (None: the run's)."""
+def nominal_env(policy, episode_length: int | None = None, env_name: str | None = None, **options):
+    """The run's env (or ``env_name``, another env with the same observations: a flat-ground
+    policy on rough ground) with domain randomisation and observation noise off, and ``options``
+    (e.g. a held ``command``) over its own; ``episode_length`` (None: the run's)."""
     config = RunConfig.from_dict(policy.run_config).env
     quiet = {"observation_noise": 0.0} if "observation_noise" in config.options else {}
     return dataclasses.replace(
-        config, randomization=NOMINAL, options={**config.options, **quiet, **options},
+        config, name=env_name or config.name, randomization=NOMINAL,
+        options={**config.options, **quiet, **options},
         episode_length=episode_length or config.episode_length,
     ).make()  # fmt: skip
 

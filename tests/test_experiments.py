@@ -454,3 +454,10 @@ def test_robot_training_reads_runs_and_interpolates_playgrounds_curve(tmp_path):
     assert e["playground_return"] == pytest.approx(4.7)
     page = robot_training.markdown([out])
     assert "| humanoid_joystick | 10,800,000 | 900 | 5.0 | 300 | success 0.25 | 4.7 |" in page
+    # A run fine-tuned from another (init_from) names what it started from.
+    tuned = tmp_path / "tuned"
+    tuned.mkdir()
+    (tuned / "config.json").write_text(json.dumps({**config, "init_from": str(run)}))
+    (tuned / "metrics.csv").write_text(header + "\n".join(rows) + "\n")
+    page = robot_training.markdown([robot_training.read_run(tuned)])
+    assert "| humanoid_joystick (from humanoid_joystick at 11M steps) | 10,800,000 | 900 |" in page

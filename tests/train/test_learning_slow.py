@@ -104,6 +104,25 @@ def test_go1_joystick_ppo_walks_forward_on_command(tmp_path):
 
 
 @pytest.mark.slow
+def test_go1_joystick_rough_ppo_from_the_flat_walker_walks_forward_on_rough_ground(tmp_path):
+    """go1_joystick_rough, fine-tuned: go1_joystick's shipped run (120M steps, ~2 h), then the
+    shipped rough-ground run started from its weights (``init_from``, 20M steps, ~75 min; one
+    seed). The rough-ground policy's deterministic evaluation return (64 episodes, commands drawn
+    as in training) reaches 20, and under a held forward command of 0.5 m/s (6 s from reset,
+    32 envs, nominal physics) it moves forward at 0.25 m/s or more. The flat walker itself
+    scores 13.5 on rough ground (it falls in half its episodes; 28.9 on flat ground). The bars
+    were set on 2026-11-28 before the first rough-ground run's first evaluation."""
+    flat, rough = tmp_path / "flat", tmp_path / "rough"
+    run(compose_cfg(["env=go1_joystick", "algo=ppo", "logger=quiet", f"run_dir={flat}"]))
+    overrides = ["env=go1_joystick_rough", "algo=ppo", "logger=quiet", f"init_from={flat}"]
+    out = run(compose_cfg([*overrides, f"run_dir={rough}"]))
+    _, rows = joystick_commands.measure(str(rough), [(0.5, 0.0, 0.0)], n=32, runs=1, seconds=6.0)
+    forward, ret = rows[0]["fastrl"]["velocity"][0], out["last"]["eval/episode_return"]
+    print(f"go1_joystick_rough/ppo: return {ret:.1f}, {forward:.2f} m/s under 0.5 m/s")
+    assert ret >= 20 and forward >= 0.25, (ret, forward)
+
+
+@pytest.mark.slow
 def test_humanoid_joystick_ppo_tracks_commands_to_an_eval_return_of_10(tmp_path):
     """humanoid_joystick: the mean deterministic evaluation return (64 episodes of up to 1000
     steps, commands drawn as in training, pushes and domain randomisation on) reaches 10 within
