@@ -220,6 +220,9 @@ def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path, capsys):
     import json
 
     assert json.loads((tmp_path / "tuned" / "config.json").read_text())["init_from"] == str(source)
+    more = [*QUICK_RESUME, f"run_dir={tmp_path}/x", f"resume={tmp_path}/tuned", "train.total_env_steps=1536"]
+    out = run(compose_cfg([*more, f"init_from={source}"]))  # continues its own checkpoints
+    assert out["status"] == "done" and out["chunks"] == 6 and "started from" not in capsys.readouterr().out
     # Weights that do not fit, or of another algorithm: a clear error, and nothing written.
     with pytest.raises(CheckpointError, match=r"params\['policy'\].*saved \(16,\) -> now \(8,\)"):
         narrow = "network.policy_hidden=[8]"
