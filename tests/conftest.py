@@ -12,14 +12,24 @@ import pytest
 
 import fastrl
 
-# The tests' programs compile for longer than they run: LLVM's cheapest optimisation level takes a
-# third off a GJK/EPA gradient test (47.5 -> 31.0 s; tests/physics/test_mesh_hfield.py). Set in
-# XLA_FLAGS, so the command-line runs that tests start inherit it; a level in XLA_FLAGS stays.
-if "--xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_backend_optimization_level=0".strip()
 # fastrl's XLA:CPU flags, as the command line uses them: set before JAX starts a backend (importing
 # fastrl sets nothing; this is the library's one opt-in call).
 fastrl.use_recommended_xla_flags()
+
+
+def pytest_configure(config):
+    """The default suite's programs compile for longer than they run: LLVM's cheapest
+    optimisation level takes a third off a GJK/EPA gradient test (47.5 -> 31.0 s;
+    tests/physics/test_mesh_hfield.py). Set in XLA_FLAGS (before any JAX backend starts), so the
+    command-line runs that tests start inherit it; a level in XLA_FLAGS stays. The slow checks
+    (``-m slow``: full training runs, some with a wall-time bar) keep XLA's own level, as users'
+    runs do."""
+    markexpr = config.getoption("markexpr", "") or ""
+    slow = "slow" in markexpr and "not slow" not in markexpr
+    if not slow and "--xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+        flags = os.environ.get("XLA_FLAGS", "")
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_optimization_level=0".strip()
+
 
 ASSETS = pathlib.Path(__file__).parent / "assets"
 MODELS = sorted(p.stem for p in ASSETS.glob("*.xml"))
