@@ -21,9 +21,10 @@ __all__ = [
     "start_from",
 ]
 
-# The fields of a learner's state that ``init_from`` carries into a new run: network weights
-# (PPO's policy and value, SAC's actor, critics and temperature, ES's parameter vector) and the
-# observation normaliser. The optimiser state, envs, replay buffer, RNG and counters start fresh.
+# The fields of a learner's state that ``init_from`` carries into a new run: network weights (PPO's
+# policy and value; SAC's actor, critics, target critics and temperature; ES's parameter vector)
+# and the observation normaliser. The optimiser state, envs, replay buffer, RNG and counters start
+# fresh.
 LEARNED_FIELDS = ("params", "theta", "obs_stats")
 
 
