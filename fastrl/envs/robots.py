@@ -17,7 +17,7 @@ import numpy as np
 
 from fastrl import robot_scenes
 from fastrl.envs.base import Env
-from fastrl.physics.collision_driver import contact_layout
+from fastrl.physics.collision_driver import contact_layout, dynamic_candidates
 from fastrl.physics.math import cross, quat_conj, quat_integrate, quat_mul, quat_to_mat
 
 
@@ -45,7 +45,14 @@ class RobotTask(Env):
         pairs = [i for i, ab in enumerate(both) if set(map(int, ab)) == want]
         if not pairs:
             raise ValueError(f"{self.name}: geoms {geom1!r} and {geom2!r} never collide in {self.asset_path}")
-        return np.flatnonzero(np.isin(contact_layout(m), pairs))
+        slots = np.flatnonzero(np.isin(contact_layout(m), pairs))
+        if dynamic_candidates(m)[slots].any():
+            raise ValueError(
+                f"{self.name}: the pair of geoms {geom1!r} and {geom2!r} is in a group that MJX's "
+                "broad-phase cap (max_geom_pairs) compacts, so its contacts have no fixed slots; "
+                "watch Data.contact_pair"
+            )
+        return slots
 
     def _point_velocity(self, data, body, point):
         """World linear velocity of ``point`` fixed to ``body`` (from its com-based velocity);

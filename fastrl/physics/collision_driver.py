@@ -160,11 +160,23 @@ def capped(m: Model, key: tuple) -> bool:
     return m.max_geom_pairs > 0 and not {GeomType.PLANE, GeomType.HFIELD} & set(key[:2])
 
 
-def _broadphase(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes: tuple):
+def compacted(m: Model, key: tuple, idx: np.ndarray) -> bool:
+    """Whether a group emits contacts only for the pairs it collides: MJX's ``max_geom_pairs``
+    on a primitive or box-box group with more pairs than that. Its candidates' pairs then change
+    from step to step (``Data.contact_pair``); a GJK/EPA group keeps its whole layout (``_cull``)."""
+    return capped(m, key) and key not in GJK_PAIRS and idx.size > m.max_geom_pairs
+
+
+def _broadphase(m: Model, d: Data, idx: np.ndarray, fn, args: tuple, axes: tuple):
     """A group's contacts with MJX's ``max_geom_pairs``: only the pairs whose bounding spheres
-    overlap most are collided."""
-    _, chosen, args = _keep(m.max_geom_pairs, _overlap(m, d, idx), args, axes)
-    return _spread(idx.size, chosen, jax.vmap(fn, axes)(*args))
+    overlap most are collided, and only their contacts are emitted, in the group's pair order
+    (so ties in depth resolve as they would over the whole group). Returns the contacts and
+    each collided pair's index."""
+    _, chosen = jax.lax.top_k(_overlap(m, d, idx), m.max_geom_pairs)
+    chosen = jnp.sort(chosen)
+    take = lambda a: jax.tree.map(lambda x: x[chosen], a)  # noqa: E731
+    args = tuple(a if ax is None else take(a) for a, ax in zip(args, axes, strict=True))
+    return jax.vmap(fn, axes)(*args), jnp.asarray(idx, jnp.int32)[chosen]
 
 
 def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes: tuple):
@@ -218,10 +230,37 @@ def candidates_per_pair(m: Model, key: tuple[int, int], idx: np.ndarray) -> int:
     return count
 
 
+def _emitted(m: Model, key: tuple[int, int], idx: np.ndarray) -> np.ndarray:
+    """The pairs whose candidates a group emits, as laid out: all of them, or for a ``compacted``
+    group its first ``max_geom_pairs`` (placeholders: the pairs collided change every step)."""
+    return idx[: m.max_geom_pairs] if compacted(m, key, idx) else idx
+
+
 def contact_layout(m: Model) -> np.ndarray:
-    """(ncon,) the pair index of every candidate contact, in the order ``collision`` emits them."""
-    parts = [np.repeat(idx, candidates_per_pair(m, key, idx)) for key, idx in pair_groups(m)]
+    """(ncand,) the pair index of every candidate contact, in the order ``collision`` emits them.
+
+    Static. Where ``dynamic_candidates`` is True the entry is a placeholder of the right group
+    (same geom types and condim); the pair that candidate holds is ``Data.contact_pair``'s."""
+    groups = pair_groups(m)
+    parts = [np.repeat(_emitted(m, key, idx), candidates_per_pair(m, key, idx)) for key, idx in groups]
     return np.concatenate(parts) if parts else np.zeros(0, np.int64)
+
+
+def dynamic_candidates(m: Model) -> np.ndarray:
+    """(ncand,) bool: the candidates of ``compacted`` groups, whose pair changes step to step."""
+    parts = [
+        np.full(_emitted(m, key, idx).size * candidates_per_pair(m, key, idx), compacted(m, key, idx))
+        for key, idx in pair_groups(m)
+    ]
+    return np.concatenate(parts) if parts else np.zeros(0, bool)
+
+
+def candidate_pairs(m: Model, d: Data) -> jax.Array:
+    """(ncand,) int32 the pair each candidate contact holds: ``Data.contact_pair`` when some
+    group is ``compacted``, else the static ``contact_layout`` (a constant XLA folds)."""
+    if dynamic_candidates(m).any():
+        return d.contact_pair
+    return jnp.asarray(contact_layout(m), jnp.int32)
 
 
 def _mesh_verts(m: Model, g: np.ndarray) -> jax.Array:
@@ -311,8 +350,9 @@ def make_frame(normal: jax.Array, tangent: jax.Array) -> jax.Array:
 
 
 def collision(m: Model, d: Data) -> Data:
-    """Candidate contacts of every pair: ``contact_dist``, ``contact_pos``, ``contact_frame``."""
-    dists, poss, normals, tangents = [], [], [], []
+    """Candidate contacts of every pair: ``contact_dist``, ``contact_pos``, ``contact_frame`` and
+    ``contact_pair``."""
+    dists, poss, normals, tangents, pairs = [], [], [], [], []
     for key, idx in pair_groups(m):
         fn = SUPPORTED[key][0]
         g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
@@ -322,20 +362,26 @@ def collision(m: Model, d: Data) -> Data:
         fn = functools.partial(fn, **static) if static else fn
         if key in GJK_PAIRS and not m.multiccd:  # <flag multiccd="disable"/>: one contact a pair
             fn = gjk.convex_pair(*key[:2], multi=False)
+        count = candidates_per_pair(m, key, idx)
+        pair = jnp.asarray(np.repeat(idx, count), jnp.int32)
         if key in GJK_PAIRS:  # bounding spheres and GJK first
             dist, pos, normal, tangent = _cull(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
-        elif capped(m, key) and idx.size > m.max_geom_pairs:
-            dist, pos, normal, tangent = _broadphase(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
+        elif compacted(m, key, idx):
+            out, chosen = _broadphase(m, d, idx, fn, (*poses, *extra), (0,) * 6 + axes)
+            dist, pos, normal, tangent = out
+            pair = jnp.repeat(chosen, count)
         else:
             dist, pos, normal, tangent = jax.vmap(fn, (0,) * 6 + axes)(*poses, *extra)
         dists.append(dist.reshape(-1))
         poss.append(pos.reshape(-1, 3))
         normals.append(normal.reshape(-1, 3))
         tangents.append(tangent.reshape(-1, 3))
+        pairs.append(pair)
     if not dists:
         return d
     return d.replace(
         contact_dist=jnp.concatenate(dists),
         contact_pos=jnp.concatenate(poss),
         contact_frame=make_frame(jnp.concatenate(normals), jnp.concatenate(tangents)),
+        contact_pair=jnp.concatenate(pairs),
     )

@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from fastrl.physics import equality, tree
-from fastrl.physics.collision_driver import contact_layout
+from fastrl.physics.collision_driver import candidate_pairs, contact_layout
 from fastrl.physics.jacobian import point_jacobian, point_jacobian_masked, rotation_jacobian  # noqa: F401
 from fastrl.physics.math import matmul, matvec
 from fastrl.physics.types import Data, JointType, Model
@@ -176,7 +176,7 @@ def select_contacts(m: Model, d: Data, candidates: np.ndarray, nslot: int) -> ja
     """
     if nslot == candidates.size:
         return jnp.asarray(candidates, jnp.int32)
-    r = d.contact_dist[candidates] - m.pair_margin[contact_layout(m)[candidates]]
+    r = d.contact_dist[candidates] - m.pair_margin[candidate_pairs(m, d)[candidates]]
     _, pick = jax.lax.top_k(-r, nslot)
     return jnp.asarray(candidates, jnp.int32)[pick]
 
@@ -334,30 +334,30 @@ def _limit_rows(m: Model, d: Data, rows: _RowList) -> None:
 def _contact_rows(m: Model, d: Data, rows: _RowList) -> list[jax.Array]:
     """The contact slots' rows, condim group by condim group; returns each group's candidates."""
     dtype = d.qvel.dtype
-    layout = contact_layout(m)
+    pairs = candidate_pairs(m, d)
     ids = []
-    b1_all = m.geom_bodyid[m.pair_geom1[layout]]
-    b2_all = m.geom_bodyid[m.pair_geom2[layout]]
+    body1 = jnp.asarray(m.geom_bodyid[m.pair_geom1], jnp.int32)  # per pair
+    body2 = jnp.asarray(m.geom_bodyid[m.pair_geom2], jnp.int32)
     ancestors = tree.body_dof_ancestors(m)
-    moving1 = ancestors[b1_all].any()  # geom1 is often the static floor: no motion
-    tran_all = m.body_invweight0[b1_all, 0] + m.body_invweight0[b2_all, 0]
+    moving1 = ancestors[m.geom_bodyid[m.pair_geom1]].any()  # geom1 is often the static floor: no motion
+    ancestors, rootid = jnp.asarray(ancestors, dtype), jnp.asarray(m.body_rootid, jnp.int32)
     for dim, sel, nslot in contact_groups(m):
         idx = select_contacts(m, d, sel, nslot)  # (nslot,) candidate of each slot
         ids.append(idx)
-        pair = jnp.asarray(layout, jnp.int32)[idx]
+        pair = pairs[idx]
+        b1, b2 = body1[pair], body2[pair]
         pos = d.contact_pos[idx]
 
-        def slot_jacobian(bodies, idx=idx, pos=pos):  # bodies of all candidates -> the slots'
-            mask = jnp.asarray(ancestors[bodies], dtype)[idx]
-            return point_jacobian_masked(d, mask, d.subtree_com[jnp.asarray(m.body_rootid[bodies])[idx]], pos)
+        def slot_jacobian(bodies, pos=pos):  # the slots' bodies -> their point Jacobians
+            return point_jacobian_masked(d, ancestors[bodies], d.subtree_com[rootid[bodies]], pos)
 
-        jac_p = slot_jacobian(b2_all)
+        jac_p = slot_jacobian(b2)
         if moving1:
-            jac_p = jac_p - slot_jacobian(b1_all)
+            jac_p = jac_p - slot_jacobian(b1)
         frame = d.contact_frame[idx]
         jac_c = matmul(frame, jac_p)  # rows: normal, tangent1, tangent2
         common = (d.contact_dist[idx], m.pair_margin[pair], m.pair_solref[pair], m.pair_solimp[pair])
-        tran = tran_all[idx]
+        tran = m.body_invweight0[b1, 0] + m.body_invweight0[b2, 0]
         if dim == 1:
             rows.add(jac_c[:, 0], *common, tran)
             continue
@@ -365,10 +365,9 @@ def _contact_rows(m: Model, d: Data, rows: _RowList) -> list[jax.Array]:
         # rotation about the normal (torsion), for 6 also about the tangents (rolling).
         dirs = [jac_c[:, 1], jac_c[:, 2]]
         if dim > 3:
-            mask_b = lambda bodies, idx=idx: jnp.asarray(ancestors[bodies], dtype)[idx]  # noqa: E731
-            jac_r = rotation_jacobian(d, mask_b(b2_all))
+            jac_r = rotation_jacobian(d, ancestors[b2])
             if moving1:
-                jac_r = jac_r - rotation_jacobian(d, mask_b(b1_all))
+                jac_r = jac_r - rotation_jacobian(d, ancestors[b1])
             jac_rc = matmul(frame, jac_r)  # rows: about the normal, tangent1, tangent2
             dirs += [jac_rc[:, 0]] if dim == 4 else [jac_rc[:, 0], jac_rc[:, 1], jac_rc[:, 2]]
         jn = jac_c[:, 0]
@@ -407,6 +406,6 @@ def make_constraint(m: Model, d: Data) -> Data:
         efc_D=jnp.concatenate(dees),
     )  # fmt: skip
     if ids:
-        within = d.contact_dist < m.pair_margin[layout]
+        within = d.contact_dist < m.pair_margin[candidate_pairs(m, d)]
         out = out.replace(contact_id=jnp.concatenate(ids), ncon=jnp.sum(within).astype(jnp.int32))
     return out

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics.collision_driver import FACES, GJK_PAIRS, SUPPORTED
+from fastrl.physics.collision_driver import FACES, GJK_PAIRS, SUPPORTED, contact_layout
 from fastrl.physics.constraint import contact_slots, default_nconmax
 from fastrl.physics.constraint import sizes as constraint_sizes
 from fastrl.physics.types import Data, GeomType, Integrator, JointType, Model
@@ -738,7 +738,8 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
         qfrc_spring=z(nv), qfrc_damper=z(nv), qfrc_passive=z(nv), actuator_length=z(nu),
         actuator_velocity=z(nu), actuator_force=z(nu), qfrc_actuator=z(nv), qfrc_smooth=z(nv),
         qacc=z(nv), qacc_smooth=z(nv), contact_dist=z(ncon), contact_pos=z(ncon, 3),
-        contact_frame=z(ncon, 3, 3), ncon=jnp.zeros((), jnp.int32),
+        contact_frame=z(ncon, 3, 3), contact_pair=jnp.asarray(contact_layout(model), jnp.int32),
+        ncon=jnp.zeros((), jnp.int32),
         contact_id=jnp.zeros(nslot, jnp.int32), efc_J=z(nefc, nv), efc_pos=z(nefc), efc_aref=z(nefc),
         efc_D=z(nefc), efc_force=z(nefc), qfrc_constraint=z(nv),
         diverged=jnp.zeros((), bool),

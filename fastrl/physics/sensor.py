@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl.physics import constraint
-from fastrl.physics.collision_driver import contact_layout
+from fastrl.physics.collision_driver import candidate_pairs, contact_layout
 from fastrl.physics.math import cross
 from fastrl.physics.types import Data, Model
 
@@ -51,7 +51,7 @@ def contact_force(m: Model, d: Data) -> jax.Array:
             continue
         edges = d.efc_force[a[:, None] + np.arange(2 * (dim - 1))]  # (n, 2 (dim - 1))
         normal = jnp.sum(edges, -1, keepdims=True)
-        pair = jnp.asarray(layout, jnp.int32)[d.contact_id[start - nslot : start]]
+        pair = candidate_pairs(m, d)[d.contact_id[start - nslot : start]]
         tangent = (edges[:, 0::2] - edges[:, 1::2]) * m.pair_friction[pair, : dim - 1]
         slots.append(jnp.pad(jnp.concatenate([normal, tangent], -1), ((0, 0), (0, 6 - dim))))
     if not slots:
@@ -89,10 +89,11 @@ def cfrc_ext(m: Model, d: Data) -> jax.Array:
     local = contact_force(m, d)
     force = jnp.sum(d.contact_frame * local[:, :3, None], axis=-2)  # frame^T local: world axes
     torque = jnp.sum(d.contact_frame * local[:, 3:, None], axis=-2)  # torsion and rolling (condim 4/6)
-    for sign, geoms in ((-1.0, m.pair_geom1[layout]), (1.0, m.pair_geom2[layout])):
-        bodies = m.geom_bodyid[geoms]
-        if not bodies.any():  # this side is always the world (the floor): nothing to apply
+    pairs = candidate_pairs(m, d)
+    for sign, geoms in ((-1.0, m.pair_geom1), (1.0, m.pair_geom2)):
+        if not m.geom_bodyid[geoms].any():  # this side is always the world (the floor): nothing to apply
             continue
-        arm = d.contact_pos - d.subtree_com[m.body_rootid[bodies]]
+        bodies = jnp.asarray(m.geom_bodyid[geoms], jnp.int32)[pairs]
+        arm = d.contact_pos - d.subtree_com[jnp.asarray(m.body_rootid, jnp.int32)[bodies]]
         out = out.at[bodies].add(sign * jnp.concatenate([cross(arm, force) + torque, force], -1))
     return out.at[0].set(0.0)

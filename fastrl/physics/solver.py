@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl.physics import constraint, equality, smooth, tree
-from fastrl.physics.collision_driver import contact_layout
+from fastrl.physics.collision_driver import candidate_pairs
 from fastrl.physics.math import matvec
 from fastrl.physics.types import Data, Model
 
@@ -60,9 +60,8 @@ def hessian_structure(m: Model) -> tuple[tuple[int, ...], ...]:
     fill-free L^T D L factorisation applies, as for M. Otherwise H is factorised densely.
     """
     moving = tree.body_dof_ancestors(m).any(axis=1)
-    layout = contact_layout(m)
-    b1 = m.geom_bodyid[m.pair_geom1[layout]]
-    b2 = m.geom_bodyid[m.pair_geom2[layout]]
+    b1 = m.geom_bodyid[m.pair_geom1]  # every pair that can hold a contact
+    b2 = m.geom_bodyid[m.pair_geom2]
     coupled = np.any(moving[b1] & moving[b2]) or equality.couples_branches(m, moving)
     # a tendon's row may span branches too (its Jacobian reaches every joint it crosses)
     coupled = coupled or constraint.friction_tendons(m).size or constraint.limited_tendons(m).size
@@ -230,10 +229,10 @@ def make_rows(m: Model, d: Data) -> Rows:
     blocks = constraint.elliptic_blocks(m)
     end = blocks[0][1] if blocks else d.efc_aref.shape[0]
     cones = []
-    layout = jnp.asarray(contact_layout(m), jnp.int32)
+    pairs = candidate_pairs(m, d)
     for dim, row, slot, nslot in blocks:
         rows = slice(row, row + nslot * dim)
-        fric = m.pair_friction[layout[d.contact_id[slot : slot + nslot]], : dim - 1]
+        fric = m.pair_friction[pairs[d.contact_id[slot : slot + nslot]], : dim - 1]
         mu = fric[:, 0] / jnp.sqrt(jnp.maximum(1e-15, m.impratio))
         cones.append(_Cones(d.efc_J[rows].reshape(nslot, dim, -1), d.efc_aref[rows].reshape(nslot, dim),
                             d.efc_D[rows].reshape(nslot, dim), mu, fric))  # fmt: skip

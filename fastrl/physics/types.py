@@ -357,7 +357,9 @@ class Data:
                   qacc_smooth (nv,)  acceleration without constraints
     Contacts:     contact_dist (ncand,)  contact_pos (ncand,3)  contact_frame (ncand,3,3) (rows:
                   normal, tangents); candidates of the static pair table, active where
-                  dist < margin.  ncon () int32: how many are active (mjData.ncon)
+                  dist < margin.  contact_pair (ncand,) int32: the pair each candidate holds
+                  (fixed, except in groups that MJX's broad-phase cap compacts: see
+                  collision_driver.compacted).  ncon () int32: how many are active (mjData.ncon)
                   contact_id (nslot,) int32: the candidate held by each contact slot (the
                   nconmax deepest, see constraint.py); only slots have constraint rows
     Constraints:  efc_J (nefc,nv)  efc_pos (nefc,)  efc_aref (nefc,)  efc_D (nefc,) (= 1/R; 0 on
@@ -410,6 +412,7 @@ class Data:
     contact_dist: jax.Array
     contact_pos: jax.Array
     contact_frame: jax.Array
+    contact_pair: jax.Array
     ncon: jax.Array
     contact_id: jax.Array
     efc_J: jax.Array

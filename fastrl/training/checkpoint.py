@@ -67,18 +67,20 @@ def _unpack(packed: dict[str, Any], like: Any) -> Any:
     return jax.tree_util.tree_unflatten(treedef, out)
 
 
-# Leaves that every env step overwrites before anything reads them (per-step diagnostics): a
-# checkpoint saved before an env gained or lost one still restores.
-_STEP_METRICS = ".env_state.metrics["
+# Leaves that every env step overwrites before anything reads them: per-step diagnostics, and
+# the pair each candidate contact holds (written by collision, read by the constraint rows). A
+# checkpoint saved before an env or the engine gained or lost one still restores.
+_STEP_METRICS = (".env_state.metrics[", ".data.contact_pair")
 
 
 def _match_saved(target: dict[str, Any], saved: dict[str, Any] | None, where: Path) -> dict[str, Any]:
     """``target`` fitted to the leaves a checkpoint holds (``saved``: key -> metadata; None when
-    unknown). A step metric that this version adds is left out (restored as zeros), one that it
-    dropped is read and then discarded; any other difference is an error that names it."""
+    unknown). A step-overwritten leaf (``_STEP_METRICS``) that this version adds is left out
+    (restored as zeros), one that it dropped is read and then discarded; any other difference
+    is an error that names it."""
     if saved is None:
         return target
-    metric = lambda key: _STEP_METRICS in key  # noqa: E731
+    metric = lambda key: any(part in key for part in _STEP_METRICS)  # noqa: E731
     missing = [k for k in target if k not in saved]
     extra = [k for k in saved if k not in target]
     other = [k for k in missing + extra if not metric(k)]

@@ -125,6 +125,18 @@ def test_mjx_caps_collide_the_closest_pairs_and_size_the_slots(x64):
     # a cap of 2: only the two closest neighbours (centres 0.18 and 0.185 apart) touch
     m = physics.load_mjcf(_box_row(2), mjx_caps=True)
     d = jax.jit(lambda d: fwd.forward(m, d))(physics.make_data(m))
-    layout = collision_driver.contact_layout(m)
-    touching = {(int(m.pair_geom1[p]), int(m.pair_geom2[p])) for p in layout[np.asarray(d.contact_dist) < 0]}
+    # only the collided pairs' candidates are laid out (2 pairs x 8), each naming its pair
+    assert collision_driver.contact_layout(m).size == d.contact_dist.size == 16
+    assert collision_driver.dynamic_candidates(m).all()
+    pairs = np.asarray(d.contact_pair)
+    assert {(int(m.pair_geom1[p]), int(m.pair_geom2[p])) for p in pairs} == {(1, 2), (3, 4)}
+    touching = {(int(m.pair_geom1[p]), int(m.pair_geom2[p])) for p in pairs[np.asarray(d.contact_dist) < 0]}
     assert touching == {(1, 2), (3, 4)}
+    # the boxes shifted so other pairs are closest: the slots follow them
+    mj = mujoco.MjModel.from_xml_string(_box_row(2))
+    md = mujoco.MjData(mj)
+    md.qpos[0] += 0.01  # the first box moves 10 mm into its neighbour: centres 0.18 apart
+    md.qpos[28] += 0.02  # the last moves away from its neighbour: 0.2 apart
+    d = jax.jit(lambda d: fwd.forward(m, d))(physics.make_data(m, qpos=md.qpos))
+    pairs = np.asarray(d.contact_pair)
+    assert {(int(m.pair_geom1[p]), int(m.pair_geom2[p])) for p in pairs} == {(0, 1), (1, 2)}

@@ -9,7 +9,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -311,6 +311,16 @@ def test_the_cached_program_key_follows_what_builds_the_program(tmp_path):
 class _Env(NamedTuple):
     metrics: dict
     obs: jax.Array
+    data: Any
+
+
+class _OldData(NamedTuple):  # physics data before the engine gained Data.contact_pair
+    contact_dist: jax.Array
+
+
+class _NewData(NamedTuple):
+    contact_dist: jax.Array
+    contact_pair: jax.Array
 
 
 class _Saved(NamedTuple):
@@ -319,23 +329,32 @@ class _Saved(NamedTuple):
 
 
 def test_a_checkpoint_saved_before_an_env_gained_or_lost_a_step_metric_still_restores(tmp_path):
-    """Step metrics are overwritten by every env step, so a policy saved by an older version (an
-    env since given a new metric, or rid of one) still loads; any other difference is an error
-    that names the leaf."""
+    """Step metrics (and the pair each candidate contact holds) are overwritten by every env step,
+    so a policy saved by an older version (an env since given a new metric, or rid of one; the
+    engine before ``Data.contact_pair``) still loads; any other difference is an error that names
+    the leaf."""
     from fastrl.training.checkpoint import Checkpointer
 
     config = {"env": {"name": "toy"}, "train": {"num_seeds": 1, "vmap_sweep": None}}
-    saved = _Saved({"w": jnp.arange(3.0)}, _Env({"speed": jnp.ones(4), "old": jnp.ones(4)}, jnp.ones((4, 2))))
+    old_data = _OldData(jnp.ones((4, 5)))
+    saved = _Saved(
+        {"w": jnp.arange(3.0)}, _Env({"speed": jnp.ones(4), "old": jnp.ones(4)}, jnp.ones((4, 2)), old_data)
+    )
     ckpt = Checkpointer(tmp_path / "checkpoints")
     try:
         ckpt.save(1, saved, {"config": config, "env_steps": 0})
-        now = _Saved(saved.params, _Env({"speed": jnp.zeros(4), "new": jnp.zeros(4)}, jnp.zeros((4, 2))))
+        new_data = _NewData(jnp.zeros((4, 5)), jnp.ones((4, 5), jnp.int32))
+        now = _Saved(
+            saved.params, _Env({"speed": jnp.zeros(4), "new": jnp.zeros(4)}, jnp.zeros((4, 2)), new_data)
+        )
         state, _ = ckpt.restore(jax.eval_shape(lambda: now), config, 1)
         np.testing.assert_array_equal(state.params["w"], [0.0, 1.0, 2.0])
         np.testing.assert_array_equal(state.env_state.obs, 1.0)
         assert set(state.env_state.metrics) == {"speed", "new"}
         np.testing.assert_array_equal(state.env_state.metrics["speed"], 1.0)
         np.testing.assert_array_equal(state.env_state.metrics["new"], 0.0)
+        np.testing.assert_array_equal(state.env_state.data.contact_dist, 1.0)
+        np.testing.assert_array_equal(state.env_state.data.contact_pair, 0)  # rewritten by the next step
         other = _Saved({"w": jnp.zeros(3), "b": jnp.zeros(2)}, now.env_state)
         with pytest.raises(CheckpointError, match=r"other state .*\['b'\]"):
             ckpt.restore(jax.eval_shape(lambda: other), config, 1)
