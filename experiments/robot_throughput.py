@@ -11,12 +11,15 @@ scene through ``mujoco.rollout`` with 2 threads (float64, physics only: no obser
 reward), ``frame_skip`` physics steps per control step, with the servo targets that the same
 kind of random actions sets from a new episode's start.
 
-Writes ``experiments/results/robot_throughput.{json,md}``.
+Writes ``experiments/results/robot_throughput.{json,md}``; a run's rows replace the earlier rows of its
+envs there.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import pathlib
 import time
 
 import jax
@@ -66,11 +69,13 @@ def bench_rollout(name: str, batch: int, steps: int, seed: int = 0) -> dict:
     return {"control_steps_per_s": batch * steps / wall, "physics_steps_per_control_step": env.frame_skip}
 
 
-def markdown(rows: list[dict]) -> str:
+def markdown(rows: list[dict], commands: list[str]) -> str:
     lines = [
         "# Real-robot task throughput (control steps/s, this machine, one run)", "",
-        f"Command: `{results.command()}`. fastrl: the full env step (physics, observation, reward, "
-        "auto-reset; float32) on one CPU device and split over 2 (one per core), each scene stepped as "
+        "Runs, each later one's rows replacing the earlier rows of its envs: "
+        + "; ".join(f"`{c}`" for c in commands)
+        + ". fastrl: the full env step (physics, observation, reward, auto-reset; float32) on one "
+        "CPU device and split over 2 (one per core), each scene stepped as "
         "its env steps it (leap_cube_reorient with MJX's broad-phase caps, its default). MuJoCo C: "
         "`mujoco.rollout` with 2 threads on the same scene (float64, physics only), the servo targets "
         "of random actions.", "",
@@ -116,8 +121,25 @@ def main() -> None:
     split = {r["env"]: r for r in bench_envs.in_child(job, 2)}
     for r in rows:
         r["split_2_devices"] = split[r["env"]]
-    meta = {"machine": results.machine(), "jax": jax.__version__, "mujoco": mujoco.__version__}
-    results.save(args.out, "robot_throughput", {"meta": meta, "rows": rows}, markdown(rows))
+    save(args.out, rows)
+
+
+def save(out: str, rows: list[dict]) -> None:
+    """Writes the record: these rows replace the earlier rows of their envs, the others stay."""
+    path = pathlib.Path(out) / "robot_throughput.json"
+    before = json.loads(path.read_text()) if path.exists() else {"rows": [], "meta": {}}
+    names = {r["env"] for r in rows}
+    rows = sorted(
+        [r for r in before["rows"] if r["env"] not in names] + rows, key=lambda r: TASKS.index(r["env"])
+    )
+    commands = [*before["meta"].get("commands", []), results.command()]
+    meta = {
+        "machine": results.machine(),
+        "jax": jax.__version__,
+        "mujoco": mujoco.__version__,
+        "commands": commands,
+    }
+    results.save(out, "robot_throughput", {"meta": meta, "rows": rows}, markdown(rows, commands))
 
 
 if __name__ == "__main__":

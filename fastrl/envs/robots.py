@@ -826,9 +826,11 @@ class LeapCubeReorient(RobotTask):
     multiplied). The episode ends when the cube falls below the palm (z < -0.05).
     ``targets_reached``: targets reached in the episode so far.
 
-    Physics: with MJX's broad-phase caps as Playground's scene sets them by default (at most
-    12 colliding pairs and 30 contacts: ``mjx_caps=False`` steps the scene as MuJoCo C does, with
-    32 contact slots).
+    Physics: with MJX's broad-phase cap as Playground's scene sets it by default (at most 12
+    colliding pairs), and 16 contact slots where the scene sets 30 (MuJoCo C keeps at most 14
+    contacts at once under random actions, and 15 slots step the same motion as 30, 1.5x
+    faster: ``robot_scene_lean.md``). ``mjx_caps=False`` steps the scene as MuJoCo C does, with
+    32 contact slots.
     Domain randomisation (on by default): friction +-20%, masses +-10%, servo gains +-10%.
     """
 
@@ -848,6 +850,7 @@ class LeapCubeReorient(RobotTask):
     eval_metrics = ("targets_reached",)
     mjx_caps = True
     uncapped_nconmax = 32
+    capped_nconmax = 16  # the scene's max_contact_points is 30; see the class docstring
     action_scale = 0.5
     success_angle = 0.1
     noise = (0.05, 0.02, 0.1)  # joint angles, cube position, cube quaternion (normal)
@@ -860,7 +863,7 @@ class LeapCubeReorient(RobotTask):
         # without the caps: contact slots for the deepest 32 of its 2,888 candidate contacts
         # (MuJoCo C keeps at most 14 at once under random actions: robot_scene_lean.md; the
         # loader's rule, a quarter of the candidates, steps 4x slower for the same motion)
-        self.nconmax = None if self.mjx_caps else self.uncapped_nconmax
+        self.nconmax = self.capped_nconmax if self.mjx_caps else self.uncapped_nconmax
         super().__init__(**kwargs)
         self.observation_noise = float(observation_noise)
         mj = self._mujoco_model()
