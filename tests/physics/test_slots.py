@@ -119,6 +119,10 @@ def test_mjx_caps_collide_the_closest_pairs_and_size_the_slots(x64):
     d = jax.jit(lambda d: fwd.forward(m, d))(_data(m, md))
     assert int(d.ncon) == md.ncon > 4
     np.testing.assert_allclose(d.qacc, md.qacc, rtol=1e-6, atol=1e-6)
+    # the capped group lays out only its 6 collided pairs; forces reach the bodies of each one's pair
+    assert d.contact_dist.size == 6 * 8
+    mujoco.mj_rnePostConstraint(mj, md)
+    np.testing.assert_allclose(physics.cfrc_ext(m, d), md.cfrc_ext, rtol=1e-6, atol=1e-6)
     uncapped = physics.model_from_mujoco(mj)  # the default: MuJoCo C's, every pair
     assert uncapped.max_geom_pairs == -1 and uncapped.nconmax == constraint.default_nconmax(80)
 
