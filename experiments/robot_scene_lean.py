@@ -53,8 +53,10 @@ def variants(env) -> list[tuple[str, dict]]:
     if contact_layout(m).size > m.nconmax // 2 > 0:
         out.append((f"{m.nconmax // 2} contact slots", {"nconmax": m.nconmax // 2}))
     if env.mjx_caps:
+        if env.nconmax is not None:  # the env sets its own slots: beside them, the scene's
+            out.append(("the scene's contact slots", {"nconmax": None}))
         uncapped = type(env)(randomization=NOMINAL, mjx_caps=False).model.nconmax
-        out.append(("without MJX's caps, the loader's contact slots", {"mjx_caps": False}))
+        out.append(("without MJX's caps, the loader's contact slots", {"mjx_caps": False, "nconmax": None}))
         out.append(("without MJX's caps, the env's contact slots", {"mjx_caps": False, "nconmax": uncapped}))
     return out
 
@@ -109,7 +111,7 @@ def _rollout(model, frame_skip: int):
 
 
 def measure_variant(env, kwargs: dict, qpos, qvel, ctrl, reference, batch: int) -> dict:
-    load = {"linesearch": env.linesearch, "mjx_caps": env.mjx_caps, **kwargs}
+    load = {"linesearch": env.linesearch, "mjx_caps": env.mjx_caps, "nconmax": env.nconmax, **kwargs}
     with jax.enable_x64(True):
         model = physics.load_mjcf(env.asset_path, **load)
         run = jax.jit(jax.vmap(_rollout(model, env.frame_skip), in_axes=(0, 0, 1)))
