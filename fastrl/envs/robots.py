@@ -815,8 +815,9 @@ class LeapCubeReorient(RobotTask):
     the last two rows of the rotation from the target to the cube, and the last action, with
     Playground's noise (joint angles +-0.05, cube position +-0.02, the cube's quaternion plus
     N(0, 0.1), renormalised). It shows the target the next step is scored against (Playground's
-    shows the one before a success turns it). (Playground's critic also reads noise-free
-    privileged state.)
+    shows the one before a success turns it). ``privileged_critic=True`` appends, for PPO's
+    critic only, Playground's privileged state (``_privileged``: the noise-free joint angles,
+    cube offset and rotation to the target, joint and cube velocities, fingertip positions).
 
     Reward: Playground's terms and scales: ``orientation`` 5 tolerance(angle to target, 0.2,
     margin pi), ``position`` 0.5 tolerance(|palm - cube|, 0.02, margin 0.05),
@@ -856,10 +857,19 @@ class LeapCubeReorient(RobotTask):
     success_angle = 0.1
     noise = (0.05, 0.02, 0.1)  # joint angles, cube position, cube quaternion (normal)
 
-    def __init__(self, *, observation_noise: float = 1.0, mjx_caps: bool = True, **kwargs):
+    def __init__(
+        self,
+        *,
+        observation_noise: float = 1.0,
+        mjx_caps: bool = True,
+        privileged_critic: bool = False,
+        **kwargs,
+    ):
         """``observation_noise`` scales the observation noise (0: none); ``mjx_caps``: MJX's
-        broad-phase caps (False: the scene as MuJoCo C steps it); other arguments as
-        ``RobotTask``'s."""
+        broad-phase caps (False: the scene as MuJoCo C steps it); ``privileged_critic`` appends
+        the privileged state (``_privileged``) to the observation, for a learner's critic; other
+        arguments as ``RobotTask``'s."""
+        self.privileged_critic = bool(privileged_critic)
         self.mjx_caps = bool(mjx_caps)
         # without the caps: contact slots for the deepest 32 of its 2,888 candidate contacts
         # (MuJoCo C keeps at most 14 at once under random actions: robot_scene_lean.md; the
@@ -876,6 +886,7 @@ class LeapCubeReorient(RobotTask):
         m = self.model
         self._cube = m.body_names.index("cube")
         self._palm = m.site_names.index("grasp_site")
+        self._tips = np.asarray([m.site_names.index(f"{f}_tip") for f in ("th", "if", "mf", "rf")])
 
     # ---------------------------------------------------------------- episode and task
 
@@ -939,10 +950,30 @@ class LeapCubeReorient(RobotTask):
         cube = palm - (cube_pos + noise["pos"])
         return xp.concatenate([joints, joints - task["ctrl"], cube, xp.asarray(diff), task["last_action"]])
 
-    def _observe_task(self, model, data, task):
+    def _policy_observation(self, data, task):
         # poses as the scene's sensors read them: of the step's last forward pass, as MuJoCo C's
         c = self._cube
         return self._features(task, data.qpos, data.site_xpos[self._palm], data.xpos[c], data.xquat[c])
+
+    def _observe_task(self, model, data, task):
+        obs = self._policy_observation(data, task)
+        if not self.privileged_critic:
+            return obs
+        return jnp.concatenate([obs, self._privileged(data, task)])
+
+    def _privileged(self, data, task):
+        """What the critic reads beyond the policy's observation (Playground's
+        ``privileged_state`` less its perturbation entries): the joint angles, palm minus cube
+        and the rotation to the target without noise (25), the hand's joint velocities and the
+        cube's free-joint velocity (22), and each fingertip's position from the palm (12)."""
+        exact = self._policy_observation(data, {**task, "noise": jax.tree.map(jnp.zeros_like, task["noise"])})
+        palm = data.site_xpos[self._palm]
+        tips = (data.site_xpos[self._tips] - palm).ravel()
+        return jnp.concatenate([exact[:16], exact[32:41], data.qvel, tips])
+
+    @property
+    def policy_observation_size(self) -> int:
+        return self._reset_size(self._policy_observation)
 
     def observation_from_mujoco(self, md: mujoco.MjData, task: dict) -> np.ndarray:
         """The observation of MuJoCo C's ``mjData`` (after ``mj_step``), from the scene's own

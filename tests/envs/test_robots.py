@@ -377,6 +377,39 @@ def test_leap_cube_reorient_api_turning_targets_auto_reset_and_determinism(leap)
     jax.tree.map(np.testing.assert_array_equal, states[-1], again[-1])
 
 
+def test_leap_cube_reorient_privileged_critic_state_follows_the_policys_observation(leap):
+    """``privileged_critic=True`` appends Playground's privileged state after the policy's 57
+    entries, which stay as they were: the noise-free joint angles, palm-to-cube offset and
+    rotation to the target, the joint and cube velocities and the fingertips from the palm."""
+    env, reset, step = leap
+    priv = envs.make(env.name, privileged_critic=True)
+    assert (priv.policy_observation_size, priv.observation_size) == (57, 57 + 16 + 3 + 6 + 22 + 12)
+    rng = np.random.default_rng(0)
+    state = _run(reset, step, 2, 4, jnp.asarray(rng.uniform(-1, 1, (3, 4, 16)), jnp.float32))[-1]
+    obs = np.asarray(
+        jax.jit(jax.vmap(priv._observe_task, in_axes=(None, 0, 0)))(priv.model, state.data, state.task)
+    )
+    np.testing.assert_allclose(obs[:, :57], np.asarray(state.obs), atol=1e-6)  # (another program's rounding)
+    qpos, qvel = np.asarray(state.data.qpos), np.asarray(state.data.qvel)
+    np.testing.assert_allclose(obs[:, 57:73], qpos[:, :16], atol=1e-6)  # no joint noise
+    cube, palm = np.asarray(state.data.xpos[:, env._cube]), np.asarray(state.data.site_xpos[:, env._palm])
+    np.testing.assert_allclose(obs[:, 73:76], palm - cube, atol=1e-6)  # no position noise
+    np.testing.assert_array_equal(obs[:, 82:104], qvel)
+    assert np.abs(qvel).max() > 0  # the hand moved
+    tips = np.asarray(state.data.site_xpos[:, env._tips]) - palm[:, None]
+    np.testing.assert_allclose(obs[:, 104:], tips.reshape(4, 12), atol=1e-6)
+    # the rotation from the target to the cube (its last two rows), without the policy's noise
+    for i, (quat, goal) in enumerate(
+        zip(np.asarray(state.data.xquat[:, env._cube]), np.asarray(state.task["goal"]), strict=True)
+    ):
+        inv, diff, mat = np.zeros(4), np.zeros(4), np.zeros(9)
+        mujoco.mju_negQuat(inv, goal.astype(np.float64))
+        mujoco.mju_mulQuat(diff, quat.astype(np.float64), inv)
+        mujoco.mju_quat2Mat(mat, diff)
+        np.testing.assert_allclose(obs[i, 76:82], mat[3:], atol=1e-5)
+    assert np.abs(obs[:, 76:82] - obs[:, 35:41]).max() > 1e-3  # the policy's copy is noisy
+
+
 def test_leap_cube_reorient_steps_as_mujoco_c_without_the_mjx_caps(x64):
     """20 control steps of random actions from a reset state (nominal parameters, noise off, the
     scene as MuJoCo C steps it): fastrl's qpos and observation against MuJoCo C with the same
