@@ -366,6 +366,8 @@ def markdown(maps: dict, machine: str, runs: list[dict]) -> str:
         for integ, lim in res["limits"].items():
             at = lim.get("iterations", s["solver_iterations"])
             judged = "" if at == s["solver_iterations"] else f" (not on the grid: at {at} iters)"
+            if s["integrator"] not in res["limits"]:  # e.g. an env since shipped with another integrator
+                judged = f" (not on the grid: {s['integrator']} not mapped)"
             lines.append(f"| {name} | {res['dt']:.3g} | {ship}{judged} | {integ} "
                          f"| {_where(res, lim['diverged'])} | {_where(res, lim['guard'])} |")  # fmt: skip
     lines.append("")
