@@ -20,6 +20,7 @@ All contacts of a pair share the winning axis as their normal, from box 1 to box
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from fastrl.physics.collision_primitive import _FAR
@@ -51,20 +52,25 @@ def _separation(rot, pos21, pos12, size1, size2, septol, pareps):
     )
     code = jnp.argmax(faces)
     sep_face = faces[code]
-    code_face, best, separated = code, sep_face, jnp.any(faces > septol)
-    for i in range(3):
-        for j in range(3):
-            axis, norm2 = _edge_axis(rot, i, j)
-            i1, i2, j1, j2 = (i + 1) % 3, (i + 2) % 3, (j + 1) % 3, (j + 2) % 3
-            radius1 = size1[i1] * jnp.abs(axis[i1]) + size1[i2] * jnp.abs(axis[i2])
-            in2 = rot.T @ axis
-            radius2 = size2[j1] * jnp.abs(in2[j1]) + size2[j2] * jnp.abs(in2[j2])
-            sep = jnp.abs(axis @ pos21) - radius1 - radius2
-            usable = norm2 >= pareps
-            separated = separated | (usable & (sep > septol))
-            wins = usable & (sep - _EDGE_BIAS * jnp.abs(sep) > best) & (sep > sep_face)
-            best = jnp.where(wins, sep, best)
-            code = jnp.where(wins, 6 + 3 * i + j, code)
+    code_face, separated = code, jnp.any(faces > septol)
+
+    def edge(carry, ij):
+        best, code, separated = carry
+        i, j = ij // 3, ij % 3
+        axis, norm2 = _edge_axis(rot, i, j)
+        i1, i2, j1, j2 = (i + 1) % 3, (i + 2) % 3, (j + 1) % 3, (j + 2) % 3
+        radius1 = size1[i1] * jnp.abs(axis[i1]) + size1[i2] * jnp.abs(axis[i2])
+        in2 = rot.T @ axis
+        radius2 = size2[j1] * jnp.abs(in2[j1]) + size2[j2] * jnp.abs(in2[j2])
+        sep = jnp.abs(axis @ pos21) - radius1 - radius2
+        usable = norm2 >= pareps
+        separated = separated | (usable & (sep > septol))
+        wins = usable & (sep - _EDGE_BIAS * jnp.abs(sep) > best) & (sep > sep_face)
+        return (jnp.where(wins, sep, best), jnp.where(wins, 6 + ij, code), separated), None
+
+    # A loop, not nine unrolled steps: XLA:CPU fused the unrolled chain of running maxima into
+    # each of its readers, recomputing the axis tests ~20 times (box_box 2.2x slower, vmapped)
+    (best, code, separated), _ = jax.lax.scan(edge, (sep_face, code, separated), jnp.arange(9))
     # An edge axis within ~8 degrees of the best face axis gives way to it unless 5% better.
     axis, _ = _edge_axis(rot, jnp.maximum(code - 6, 0) // 3, jnp.maximum(code - 6, 0) % 3)
     face_axis = jnp.where(code_face < 3, jnp.eye(3, dtype=rot.dtype)[code_face % 3], rot[:, code_face % 3])
