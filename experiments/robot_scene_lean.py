@@ -50,6 +50,9 @@ def variants(env) -> list[tuple[str, dict]]:
     out = [("as the env steps it", {})]
     if m.solver_iterations > 1:
         out.append(("1 Newton iteration", {"solver_iterations": 1}))
+    half = (m.solver_iterations + 1) // 2
+    if 1 < half < m.solver_iterations:
+        out.append((f"{half} Newton iterations", {"solver_iterations": half}))
     if contact_layout(m).size > m.nconmax // 2 > 0:
         out.append((f"{m.nconmax // 2} contact slots", {"nconmax": m.nconmax // 2}))
     if env.mjx_caps:
@@ -58,6 +61,9 @@ def variants(env) -> list[tuple[str, dict]]:
         uncapped = type(env)(randomization=NOMINAL, mjx_caps=False).model.nconmax
         out.append(("without MJX's caps, the loader's contact slots", {"mjx_caps": False, "nconmax": None}))
         out.append(("without MJX's caps, the env's contact slots", {"mjx_caps": False, "nconmax": uncapped}))
+        if 1 < half < m.solver_iterations:  # against MuJoCo C's own contacts: the iterations alone
+            label = f"without MJX's caps, the env's contact slots, {half} Newton iterations"
+            out.append((label, {"mjx_caps": False, "nconmax": uncapped, "solver_iterations": half}))
     return out
 
 

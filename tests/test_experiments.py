@@ -461,3 +461,20 @@ def test_robot_training_reads_runs_and_interpolates_playgrounds_curve(tmp_path):
     (tuned / "metrics.csv").write_text(header + "\n".join(rows) + "\n")
     page = robot_training.markdown([robot_training.read_run(tuned)])
     assert "| humanoid_joystick (from humanoid_joystick at 11M steps) | 10,800,000 | 900 |" in page
+
+
+def test_robot_scene_lean_measures_fewer_iterations_with_and_without_the_caps():
+    """The Leap's variants: its own settings, 1 and half its 5 Newton iterations, half its
+    slots, the scene's slots, and without MJX's caps at the loader's and the env's slots and at
+    half the iterations (against MuJoCo C's own contacts); a one-iteration scene gets none."""
+    from experiments import robot_scene_lean
+    from fastrl import envs
+
+    leap = dict(robot_scene_lean.variants(envs.make("leap_cube_reorient")))
+    assert leap["3 Newton iterations"] == {"solver_iterations": 3}
+    assert leap["1 Newton iteration"] == {"solver_iterations": 1} and leap["as the env steps it"] == {}
+    assert leap["without MJX's caps, the env's contact slots, 3 Newton iterations"] == {
+        "mjx_caps": False, "nconmax": 32, "solver_iterations": 3,
+    }  # fmt: skip
+    go1 = [label for label, _ in robot_scene_lean.variants(envs.make("go1_joystick"))]
+    assert not any("iteration" in label for label in go1)

@@ -829,7 +829,7 @@ class LeapCubeReorient(RobotTask):
 
     Physics: with MJX's broad-phase cap as Playground's scene sets it by default (at most 12
     colliding pairs), and 16 contact slots where the scene sets 30 (MuJoCo C keeps at most 14
-    contacts at once under random actions, and 16 slots step the same motion as 30, 1.4x
+    contacts at once under random actions, and 16 slots step the same motion as 30, 1.5x
     faster, where 8 part from it: ``robot_scene_lean.md``). ``mjx_caps=False`` steps the scene
     as MuJoCo C does, with 32 contact slots.
     Domain randomisation (on by default): friction +-20%, masses +-10%, servo gains +-10%.
@@ -873,7 +873,7 @@ class LeapCubeReorient(RobotTask):
         self.mjx_caps = bool(mjx_caps)
         # without the caps: contact slots for the deepest 32 of its 2,888 candidate contacts
         # (MuJoCo C keeps at most 14 at once under random actions: robot_scene_lean.md; the
-        # loader's rule, a quarter of the candidates, steps 3.3x slower for the same motion)
+        # loader's rule, a quarter of the candidates, steps 4.4x slower for the same motion)
         self.nconmax = self.capped_nconmax if self.mjx_caps else self.uncapped_nconmax
         super().__init__(**kwargs)
         self.observation_noise = float(observation_noise)
