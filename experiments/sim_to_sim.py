@@ -48,7 +48,7 @@ def nominal_env(policy, episode_length: int | None = None, env_name: str | None 
         config, name=env_name or config.name, randomization=NOMINAL,
         options={**config.options, **quiet, **options},
         episode_length=episode_length or config.episode_length,
-    ).make()  # fmt: skip
+    ).make().for_evaluation()  # fmt: skip
 
 
 class Episodes(NamedTuple):

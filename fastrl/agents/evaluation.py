@@ -22,6 +22,7 @@ def make_evaluator(env: Env, act, num_envs: int, mesh: Mesh | None = None):
     """
     if mesh is not None and num_envs % mesh.devices.size:
         raise ValueError(f"{num_envs} evaluation envs do not divide over {mesh.devices.size} devices")
+    env = env.for_evaluation()
     names = tuple(getattr(env, "eval_metrics", ()))
     reset = jax.vmap(env.reset)
     step = over_devices(jax.vmap(env.step), mesh)
@@ -58,6 +59,7 @@ def make_rollout(env, act, length: int | None = None):
       positions of the env's ``markers`` (its goals) per frame. The step that ends the episode
       is masked out: its state already holds the next episode's reset.
     """
+    env = env.for_evaluation()
     length = env.episode_length if length is None else min(length, env.episode_length)
 
     def rollout(params, key):

@@ -236,6 +236,12 @@ class Env:
     def _observe_task(self, model: Model, data: Data, task: dict) -> jax.Array:
         return self._observe(model, data)
 
+    def for_evaluation(self) -> Env:
+        """The env a policy is scored on: this one, unless its episodes carry a training aid
+        (an easier start for part of the episodes), which the returned copy leaves out. Evaluation
+        (``agents.make_evaluator``), rollouts and loaded policies use it."""
+        return self
+
     def markers(self, task: dict) -> jax.Array:
         """(M, 3) world positions a viewer should mark (a goal env's targets); (0, 3) by default."""
         return jnp.zeros((0, 3), self.model.qpos0.dtype)

@@ -10,6 +10,8 @@ MuJoCo C unchanged.
 
 from __future__ import annotations
 
+import copy
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -819,6 +821,12 @@ class LeapCubeReorient(RobotTask):
     critic only, Playground's privileged state (``_privileged``: the noise-free joint angles,
     cube offset and rotation to the target, joint and cube velocities, fingertip positions).
 
+    ``near_targets``: a training aid (default 0, Playground's task). That fraction of episodes
+    starts with a target turned from the cube's start by an angle uniform in ``[0, near_angle]``
+    (1 rad) about a random axis, so that early training reaches targets, sees their reward and
+    goes on to the turned-away targets that follow a success; the rest start as the task does.
+    Evaluation never uses it (``for_evaluation``).
+
     Reward: Playground's terms and scales: ``orientation`` 5 tolerance(angle to target, 0.2,
     margin pi), ``position`` 0.5 tolerance(|palm - cube|, 0.02, margin 0.05),
     ``termination`` -100 when the cube falls, ``hand_pose`` -0.5 |q - home|^2,
@@ -863,12 +871,20 @@ class LeapCubeReorient(RobotTask):
         observation_noise: float = 1.0,
         mjx_caps: bool = True,
         privileged_critic: bool = False,
+        near_targets: float = 0.0,
+        near_angle: float = 1.0,
         **kwargs,
     ):
         """``observation_noise`` scales the observation noise (0: none); ``mjx_caps``: MJX's
         broad-phase caps (False: the scene as MuJoCo C steps it); ``privileged_critic`` appends
-        the privileged state (``_privileged``) to the observation, for a learner's critic; other
-        arguments as ``RobotTask``'s."""
+        the privileged state (``_privileged``) to the observation, for a learner's critic;
+        ``near_targets``, ``near_angle``: the training aid of near first targets (class
+        docstring); other arguments as ``RobotTask``'s."""
+        if not 0.0 <= near_targets <= 1.0:
+            raise ValueError(f"near_targets is a fraction of episodes in [0, 1], got {near_targets}")
+        if not 0.0 < near_angle <= np.pi:
+            raise ValueError(f"near_angle is an angle in (0, pi] radians, got {near_angle}")
+        self.near_targets, self.near_angle = float(near_targets), float(near_angle)
         self.privileged_critic = bool(privileged_critic)
         self.mjx_caps = bool(mjx_caps)
         # without the caps: contact slots for the deepest 32 of its 2,888 candidate contacts
@@ -903,11 +919,31 @@ class LeapCubeReorient(RobotTask):
         qpos = jnp.concatenate([hand, pos, self._random_quat(k3, dtype)])
         return qpos, jnp.zeros(model.nv, dtype)
 
+    def for_evaluation(self):
+        if not self.near_targets:
+            return self
+        env = copy.copy(self)
+        env.near_targets = 0.0
+        return env
+
+    def _near_goal(self, key, start, dtype):
+        """A target turned from ``start`` by an angle uniform in [0, near_angle]."""
+        k1, k2 = jax.random.split(key)
+        axis = jax.random.normal(k1, (3,), dtype)
+        half = 0.5 * self.near_angle * jax.random.uniform(k2, (), dtype)
+        turn = jnp.concatenate([jnp.cos(half)[None], jnp.sin(half) * axis / jnp.linalg.norm(axis)])
+        return quat_mul(start, turn)
+
     def _sample_task(self, key, model, data):
         k1, k2 = jax.random.split(key)
         dtype = data.qpos.dtype
+        goal = self._random_quat(k1, dtype)
+        if self.near_targets:  # a static choice: the task's own draw is unchanged without it
+            k_pick, k_near = jax.random.split(jax.random.fold_in(key, 1))
+            near = self._near_goal(k_near, data.qpos[19:23], dtype)
+            goal = jnp.where(jax.random.uniform(k_pick, (), dtype) < self.near_targets, near, goal)
         return {
-            "goal": self._random_quat(k1, dtype),
+            "goal": goal,
             "goal_spin": jnp.zeros(3, dtype),
             "ctrl": data.qpos[:16],
             "last_action": jnp.zeros(16, dtype),
