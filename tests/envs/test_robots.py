@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from fastrl import envs
+from fastrl import agents, envs
 
 NOMINAL = {"friction": 0.0, "mass": 0.0, "gain": 0.0}
 
@@ -408,6 +408,48 @@ def test_leap_cube_reorient_privileged_critic_state_follows_the_policys_observat
         mujoco.mju_quat2Mat(mat, diff)
         np.testing.assert_allclose(obs[i, 76:82], mat[3:], atol=1e-5)
     assert np.abs(obs[:, 76:82] - obs[:, 35:41]).max() > 1e-3  # the policy's copy is noisy
+
+
+def test_leap_cube_reorient_near_targets_aid_training_and_evaluation_leaves_them_out(leap):
+    """``near_targets``: that fraction of first targets lies within ``near_angle`` of the cube's
+    start, the rest are the task's own draw; ``for_evaluation`` (which the evaluator uses) is
+    the task without the aid."""
+    env, reset, step = leap
+    start = reset(jax.random.split(jax.random.PRNGKey(0), 1))
+    data = jax.tree.map(lambda x: x[0], start.data)
+    keys = jax.random.split(jax.random.PRNGKey(1), 2048)
+
+    def first_angles(e):
+        tasks = jax.jit(jax.vmap(e._sample_task, in_axes=(0, None, None)))(keys, e.model, data)
+        angles = jax.vmap(e._angle_to_goal, in_axes=(None, 0))(data.qpos[19:23], tasks["goal"])
+        return np.asarray(angles), tasks
+
+    aided = envs.make(env.name, episode_length=8, near_targets=0.5, near_angle=0.5)
+    angles, _ = first_angles(aided)
+    near = angles <= 0.5 + 1e-5
+    # a uniformly random rotation is within 0.5 rad with probability (0.5 - sin 0.5) / pi = 0.7%
+    assert 0.45 < near.mean() < 0.56, near.mean()
+    assert 0.4 < np.mean(angles[near] < 0.25) < 0.6  # the angle is uniform in [0, 0.5]
+    assert env.for_evaluation() is env and aided.near_targets == 0.5
+    task_angles, task = first_angles(env)
+    assert np.mean(task_angles <= 0.5) < 0.03
+    plain_angles, plain = first_angles(aided.for_evaluation())
+    jax.tree.map(np.testing.assert_array_equal, plain, task)
+    for bad in ({"near_targets": 1.5}, {"near_angle": 0.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            envs.make(env.name, **bad)
+
+
+def test_evaluator_and_rollout_score_the_env_for_evaluation():
+    """The evaluator and rollouts step ``env.for_evaluation()`` (here: shorter episodes)."""
+    env = envs.make("inverted_pendulum", episode_length=6)
+    scored = envs.make("inverted_pendulum", episode_length=3)
+    env.for_evaluation = lambda: scored
+    act = lambda params, obs: jnp.zeros(obs.shape[:-1] + (1,))  # noqa: E731
+    _, lengths, _ = agents.make_evaluator(env, act, 2)(None, jax.random.PRNGKey(0))
+    np.testing.assert_array_equal(np.asarray(lengths), 3)
+    qpos, _, _ = agents.make_rollout(env, act)(None, jax.random.PRNGKey(0))
+    assert qpos.shape[0] == 3 + 1
 
 
 def test_leap_cube_reorient_steps_as_mujoco_c_without_the_mjx_caps(x64):
