@@ -30,7 +30,8 @@ LEARNED_FIELDS = ("params", "theta", "obs_stats")
 
 def load_run(run_dir: str | Path, step: int | None = None, agent: int | str | None = None):
     """(RunConfig, env, learner, state) of a run's checkpoint at ``step`` (default: the newest
-    that can be read; an unreadable newer one is reported on stderr and skipped).
+    that can be read; an unreadable newer one is reported on stderr and skipped). The env is
+    the one its policy is scored on (``Env.for_evaluation``: without training aids).
 
     The state is placed on this process's devices, whatever device count the run trained on.
 
@@ -56,7 +57,7 @@ def _restore_agent(ckpt: Checkpointer, run_dir: Path, step: int, agent: int | st
     step, meta = ckpt.read_meta(step)
     config = meta["config"]
     rc = RunConfig.from_dict(config)
-    env = rc.env.make()
+    env = rc.env.make().for_evaluation()
     specs = scale.expand(rc)
     index = _agent_index(run_dir, specs, agent)
     learner, key = scale.run_learner(rc, specs, env, 1, None)
