@@ -57,16 +57,16 @@ def _restore_agent(ckpt: Checkpointer, run_dir: Path, step: int, agent: int | st
     step, meta = ckpt.read_meta(step)
     config = meta["config"]
     rc = RunConfig.from_dict(config)
-    env = rc.env.make().for_evaluation()
+    env = rc.env.make()  # as trained: its saved env states are of this env's episodes
     specs = scale.expand(rc)
     index = _agent_index(run_dir, specs, agent)
     learner, key = scale.run_learner(rc, specs, env, 1, None)
     state, _ = ckpt.restore(jax.eval_shape(learner.init, key), config, step)
     if len(specs) == 1:
-        return rc, env, learner, state
+        return rc, env.for_evaluation(), learner, state
     one = specs[index].config
     learner = agents.make_learner(one.algo_name, one.algo, env, one.network, 1)
-    return one, env, learner, jax.tree.map(lambda x: x[index], state)
+    return one, env.for_evaluation(), learner, jax.tree.map(lambda x: x[index], state)
 
 
 def _agent_index(run_dir: Path, specs: list[scale.AgentSpec], agent: int | str | None) -> int:

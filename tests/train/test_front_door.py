@@ -422,3 +422,20 @@ def test_progress_line_says_when_no_training_episode_has_ended_instead_of_printi
     waiting = _progress(row, 10_000_000, 13.0, float("nan"))
     assert "no episode ended yet" in waiting and "nan" not in waiting
     assert "train return    123.46" in _progress(row, 10_000_000, 13.0, 123.456)
+
+
+def test_a_run_trained_with_a_training_aid_loads_and_scores_the_task(tmp_path):
+    """A leap_cube_reorient run trained with near targets (a training aid whose episodes carry
+    an extra countdown) restores its checkpoint, and the loaded env is the task's (no aid)."""
+    from fastrl.training.policy import load_policy, load_run
+
+    overrides = ["env=leap_cube_reorient", "algo=ppo", "debug=quick", "logger=quiet",
+                 "env.options.near_targets=0.5", "env.episode_length=4", "algo.num_envs=4"]  # fmt: skip
+    run(compose_cfg([*overrides, f"run_dir={tmp_path}"]))
+    rc, env, _, state = load_run(tmp_path)
+    assert rc.env.options["near_targets"] == 0.5 and env.near_targets == 0.0
+    assert "near_in" in state.env_state.task  # the saved training envs carry the aid
+    assert "near_in" not in env.reset(jax.random.PRNGKey(0)).task
+    policy = load_policy(tmp_path)
+    action = policy(env.reset(jax.random.PRNGKey(1)).obs)
+    assert action.shape == (16,) and bool(jnp.isfinite(action).all())
