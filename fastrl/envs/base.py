@@ -238,7 +238,7 @@ class Env:
 
     def for_evaluation(self) -> Env:
         """The env a policy is scored on: this one, unless its episodes carry a training aid
-        (an easier start for part of the episodes), which the returned copy leaves out. Evaluation
+        (easier targets in part of its episodes, say), which the returned copy leaves out. Evaluation
         (``agents.make_evaluator``), rollouts and loaded policies use it."""
         return self
 
