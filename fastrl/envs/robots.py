@@ -882,8 +882,8 @@ class LeapCubeReorient(RobotTask):
         """``observation_noise`` scales the observation noise (0: none); ``mjx_caps``: MJX's
         broad-phase caps (False: the scene as MuJoCo C steps it); ``privileged_critic`` appends
         the privileged state (``_privileged``) to the observation, for a learner's critic;
-        ``near_targets``, ``near_angle``: the training aid of near first targets (class
-        docstring); other arguments as ``RobotTask``'s."""
+        ``near_targets``, ``near_angle``: the training aid of near targets once the cube has
+        settled (class docstring); other arguments as ``RobotTask``'s."""
         if not 0.0 <= near_targets <= 1.0:
             raise ValueError(f"near_targets is a fraction of episodes in [0, 1], got {near_targets}")
         if not 0.0 < near_angle <= np.pi:

@@ -427,7 +427,7 @@ def test_progress_line_says_when_no_training_episode_has_ended_instead_of_printi
 def test_a_run_trained_with_a_training_aid_loads_and_scores_the_task(tmp_path):
     """A leap_cube_reorient run trained with near targets (a training aid whose episodes carry
     an extra countdown) restores its checkpoint, and the loaded env is the task's (no aid)."""
-    from fastrl.training.policy import load_policy, load_run
+    from fastrl.policy import load_policy, load_run
 
     overrides = ["env=leap_cube_reorient", "algo=ppo", "debug=quick", "logger=quiet",
                  "env.options.near_targets=0.5", "env.episode_length=4", "algo.num_envs=4"]  # fmt: skip
