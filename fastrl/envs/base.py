@@ -500,8 +500,8 @@ class Env:
 
 # Data fields by role (``physics.Data``'s docstring): the state a step starts from, and the
 # kinematics, which an auto-reset always carries (cheap, and what viewers and users read).
-_STATE_FIELDS = ("qpos", "qvel", "ctrl", "time", "qfrc_applied", "qacc_warmstart", "mocap_pos", "mocap_quat",
-                 "eq_active", "diverged")  # fmt: skip
+_STATE_FIELDS = ("qpos", "qvel", "ctrl", "act", "time", "qfrc_applied", "qacc_warmstart", "mocap_pos",
+                 "mocap_quat", "eq_active", "diverged")  # fmt: skip
 _KINEMATICS = ("xpos", "xquat", "xmat", "xipos", "ximat", "xanchor", "xaxis", "geom_xpos", "geom_xmat",
                "site_xpos", "site_xmat")  # fmt: skip
 

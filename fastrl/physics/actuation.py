@@ -24,6 +24,65 @@ def clamped_ctrl(m: Model, ctrl: jax.Array) -> jax.Array:
     return ctrl
 
 
+def dynamic_actuators(m: Model) -> np.ndarray:
+    """The actuators with activation dynamics (``dyntype`` not none), each owning one ``act``."""
+    return np.flatnonzero(m.actuator_dyntype != int(mujoco.mjtDyn.mjDYN_NONE))
+
+
+def _time_constant(m: Model, dyn: np.ndarray) -> jax.Array:
+    return jnp.maximum(mujoco.mjMINVAL, m.actuator_dynprm[dyn, 0])
+
+
+def activation_rate(m: Model, d: Data, ctrl: jax.Array) -> jax.Array:
+    """(na,) ``act_dot`` (mj_fwdActuation): ``ctrl`` for an integrator, ``(ctrl - act) / tau`` for
+    a filter (exact or not), with ``ctrl`` clamped and ``tau = dynprm[0]``."""
+    dyn = dynamic_actuators(m)
+    adr = m.actuator_actadr[dyn]
+    u = ctrl[dyn]
+    integrator = m.actuator_dyntype[dyn] == int(mujoco.mjtDyn.mjDYN_INTEGRATOR)
+    rate = jnp.where(integrator, u, (u - d.act[adr]) / _time_constant(m, dyn))
+    return jnp.zeros_like(d.act).at[adr].set(rate)
+
+
+def next_activation(m: Model, act: jax.Array, act_dot: jax.Array) -> jax.Array:
+    """(na,) the activations one timestep on at rate ``act_dot`` (mj_nextActivation).
+
+    Euler, ``act + h act_dot``, except for the exact filter, which integrates its linear ODE
+    exactly: ``act + act_dot tau (1 - exp(-h / tau))``. Then clamped to ``actrange`` where
+    ``actlimited``.
+    """
+    dyn = dynamic_actuators(m)
+    adr = m.actuator_actadr[dyn]
+    h = m.timestep
+    step = h * act_dot[adr]
+    exact = m.actuator_dyntype[dyn] == int(mujoco.mjtDyn.mjDYN_FILTEREXACT)
+    if exact.any():
+        tau = _time_constant(m, dyn)
+        step = jnp.where(exact, act_dot[adr] * tau * -jnp.expm1(-h / tau), step)
+    new = act[adr] + step
+    limited = m.actuator_actlimited[dyn].astype(bool)
+    if limited.any():
+        lo, hi = m.actuator_actrange[dyn, 0], m.actuator_actrange[dyn, 1]
+        new = jnp.where(limited, jnp.clip(new, lo, hi), new)
+    return act.at[adr].set(new)
+
+
+def actuator_input(m: Model, d: Data) -> jax.Array:
+    """(nu,) what each actuator's gain multiplies: the clamped ``ctrl``, or for an actuator with
+    activation dynamics its ``act`` (with ``actearly``, the next step's ``next_activation``).
+    Expects ``d.act_dot`` to be this state's (``actuation`` sets it)."""
+    ctrl = clamped_ctrl(m, d.ctrl)
+    dyn = dynamic_actuators(m)
+    if not dyn.size:
+        return ctrl
+    adr = m.actuator_actadr[dyn]
+    act = d.act[adr]
+    early = m.actuator_actearly[dyn].astype(bool)
+    if early.any():
+        act = jnp.where(early, next_activation(m, d.act, d.act_dot)[adr], act)
+    return ctrl.at[dyn].set(act)
+
+
 def moment_actuators(m: Model) -> np.ndarray:
     """The actuators whose moment is a dense row: tendon and site transmissions (not joints)."""
     return np.flatnonzero(m.actuator_trntype != int(mujoco.mjtTrn.mjTRN_JOINT))
@@ -80,6 +139,8 @@ def actuation(m: Model, d: Data) -> Data:
 
     Position servos are ``gain = kp, bias = -kp * length - kv * velocity``; velocity servos
     ``gain = kv, bias = -kv * velocity``; motors ``gain = 1, bias = 0`` (all as MuJoCo compiles them).
+    An actuator with activation dynamics multiplies its gain by its activation instead of ctrl
+    (``actuator_input``), and sets the rate ``act_dot`` that the integrator advances it with.
     """
     if m.nu == 0 or m.disableflags & _DSBL.mjDSBL_ACTUATION:
         zeros = jnp.zeros((m.nu,), d.qvel.dtype)
@@ -87,7 +148,9 @@ def actuation(m: Model, d: Data) -> Data:
             actuator_length=zeros, actuator_velocity=zeros, actuator_force=zeros,
             qfrc_actuator=jnp.zeros_like(d.qvel),
         )  # fmt: skip
-    ctrl = clamped_ctrl(m, d.ctrl)
+    if m.na:
+        d = d.replace(act_dot=activation_rate(m, d, clamped_ctrl(m, d.ctrl)))
+    ctrl = actuator_input(m, d)
     gear = m.actuator_gear[:, 0]
     length, velocity, moment = transmission(m, d)
     gp, bp = m.actuator_gainprm, m.actuator_biasprm

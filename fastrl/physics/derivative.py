@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from fastrl.physics import math, smooth, tendon, tree
-from fastrl.physics.actuation import clamped_ctrl, moment_actuators, moments
+from fastrl.physics.actuation import actuator_input, moment_actuators, moments
 from fastrl.physics.passive import fluid
 from fastrl.physics.types import Data, JointType, Model
 
@@ -23,8 +23,9 @@ _DSBL = mujoco.mjtDisableBit
 
 def _bias_vel(m: Model, d: Data) -> jax.Array:
     """(nu,) ``d actuator_force / d actuator_velocity``: ``biasprm[2] + gainprm[2] ctrl`` for
-    affine bias and gain, zero where the force is at its ``forcerange`` (as MuJoCo 4.0)."""
-    ctrl = clamped_ctrl(m, d.ctrl)
+    affine bias and gain (``act`` in place of ctrl where the actuator has activation dynamics:
+    ``actuation.actuator_input``), zero where the force is at its ``forcerange`` (as MuJoCo 4.0)."""
+    ctrl = actuator_input(m, d)
     affine_gain = jnp.asarray(m.actuator_gaintype == 1, ctrl.dtype)
     affine_bias = jnp.asarray(m.actuator_biastype == 1, ctrl.dtype)
     bias_vel = affine_bias * m.actuator_biasprm[:, 2] + affine_gain * m.actuator_gainprm[:, 2] * ctrl

@@ -1,11 +1,14 @@
 """The step: forward dynamics, then integration (mj_forward, mj_Euler, mj_RungeKutta).
 
     step = forward (kinematics -> com quantities -> tendons -> mass matrix -> bias forces
-                    -> passive -> actuation -> qacc = M^-1 qfrc_smooth)
-         + integrate (semi-implicit Euler with implicit joint damping, implicitfast, or RK4)
+                    -> passive -> actuation -> qacc = M^-1 qfrc_smooth
+                    [-> collision -> constraint rows -> solver [-> noslip]])
+         + integrate (semi-implicit Euler with implicit joint damping, implicitfast, or RK4;
+                      activations ``act`` advance with them)
 
 As in MuJoCo, after ``step`` the derived fields (poses, forces, ``qacc``) describe the state the
-step started from (for RK4, its last stage), while ``qpos``/``qvel``/``time`` are the new state.
+step started from (for RK4, its last stage), while ``qpos``/``qvel``/``act``/``time`` are the new
+state.
 """
 
 from __future__ import annotations
@@ -15,8 +18,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import constraint, derivative, math, newton, smooth, solver, tendon
-from fastrl.physics.actuation import actuation
+from fastrl.physics import constraint, derivative, math, newton, noslip, smooth, solver, tendon
+from fastrl.physics.actuation import actuation, next_activation
 from fastrl.physics.collision_driver import collision
 from fastrl.physics.passive import passive
 from fastrl.physics.types import Data, Integrator, JointType, Model
@@ -51,17 +54,28 @@ def forward(m: Model, d: Data) -> Data:
     Smooth dynamics, then (if the model has any) collisions, constraint rows and the solver.
     """
     d = forward_forces(m, d)
-    qacc_smooth = smooth.solve(m, d.qM, d.qfrc_smooth)
+    qacc_smooth = smooth.solve_mass(m, d, d.qfrc_smooth)
     d = d.replace(qacc_smooth=qacc_smooth, qacc=qacc_smooth)
     if not has_constraints(m):
         return d
     d = collision(m, d)
     d = constraint.make_constraint(m, d)
-    return (newton.solve if m.linesearch == "mujoco" else solver.solve)(m, d)
+    d = (newton.solve if m.linesearch == "mujoco" else solver.solve)(m, d)
+    return noslip.solve(m, d) if m.noslip_iterations else d
 
 
 def _implicit_damping(m: Model) -> bool:
     return not m.disableflags & (_DSBL.mjDSBL_EULERDAMP | _DSBL.mjDSBL_DAMPER)
+
+
+def _activates(m: Model) -> bool:
+    """Whether the step advances activations: the model has some, and actuation is enabled."""
+    return bool(m.na) and not m.disableflags & _DSBL.mjDSBL_ACTUATION
+
+
+def _advance_act(m: Model, d: Data, act_dot: jax.Array) -> jax.Array:
+    """(na,) the activations after the step (mj_advance): ``next_activation`` at ``act_dot``."""
+    return next_activation(m, d.act, act_dot) if _activates(m) else d.act
 
 
 def integrate_pos(m: Model, qpos: jax.Array, qvel: jax.Array, dt: jax.Array) -> jax.Array:
@@ -112,8 +126,7 @@ def euler(m: Model, d: Data) -> Data:
     h = m.timestep
     qacc = d.qacc
     if _implicit_damping(m):
-        damped = d.qM + jnp.diag(h * m.dof_damping)
-        implicit = smooth.solve(m, damped, d.qfrc_smooth + d.qfrc_constraint)
+        implicit = smooth.solve_mass(m, d, d.qfrc_smooth + d.qfrc_constraint, h * m.dof_damping)
         if has_constraints(m):  # as MuJoCo, only a model with damping integrates it implicitly
             qacc = jnp.where(jnp.any(m.dof_damping > 0), implicit, qacc)
         else:  # no solve ran: qacc is unset (and the damped one equals it where there is none)
@@ -121,7 +134,7 @@ def euler(m: Model, d: Data) -> Data:
             qacc = implicit
     qvel = d.qvel + h * qacc
     qpos = integrate_pos(m, d.qpos, qvel, h)
-    return d.replace(qpos=qpos, qvel=qvel, time=d.time + h)
+    return d.replace(qpos=qpos, qvel=qvel, act=_advance_act(m, d, d.act_dot), time=d.time + h)
 
 
 def implicitfast(m: Model, d: Data) -> Data:
@@ -145,7 +158,7 @@ def implicitfast(m: Model, d: Data) -> Data:
     qacc = derivative.free_tree_acc(m, d, deriv, qfrc, smooth.solve(m, qh, qfrc))
     qvel = d.qvel + h * qacc
     qpos = integrate_pos(m, d.qpos, qvel, h)
-    return d.replace(qpos=qpos, qvel=qvel, time=d.time + h)
+    return d.replace(qpos=qpos, qvel=qvel, act=_advance_act(m, d, d.act_dot), time=d.time + h)
 
 
 def _rotation_dofs(m: Model) -> np.ndarray:
@@ -181,25 +194,32 @@ def rk4(m: Model, d: Data) -> Data:
     Positions advance on the joint manifold with ``integrate_pos``; ball and free-joint
     orientations use the Runge-Kutta-Munthe-Kaas form (stage velocities mapped into the Lie
     algebra by ``_lie_velocity``), which matches MuJoCo 4.0 to rounding. Stages are a
-    ``lax.scan`` so ``forward`` is traced twice, not four times.
+    ``lax.scan`` so ``forward`` is traced twice, not four times. Activations are integrated
+    alongside (stages at ``act0 + a h act_dot``, unclamped), and advance at the weighted mean of
+    the stages' ``act_dot`` by ``next_activation``, as MuJoCo's mj_RungeKutta does.
     """
     h = m.timestep
-    q0, v0, t0 = d.qpos, d.qvel, d.time
+    q0, v0, act0, t0 = d.qpos, d.qvel, d.act, d.time
     coef = jnp.array([[0.5, 0.5, 2.0], [0.5, 0.5, 2.0], [1.0, 1.0, 1.0]], v0.dtype)  # (a, c, b)
+    acts = _activates(m)
 
     def stage(carry, abc):
-        di, k, sum_k, sum_a = carry
+        di, k, sum_k, sum_a, sum_act = carry
         a, c, b = abc[0], abc[1], abc[2]
         qpos = integrate_pos(m, q0, k, a * h)  # q0 exp(u), u = a h k on rotations
         qvel = v0 + a * h * di.qacc
-        di = forward(m, di.replace(qpos=qpos, qvel=qvel, time=t0 + c * h))
+        act = act0 + a * h * di.act_dot if acts else di.act
+        di = forward(m, di.replace(qpos=qpos, qvel=qvel, act=act, time=t0 + c * h))
         k = _lie_velocity(m, a * h * k, di.qvel)
-        return (di, k, sum_k + b * k, sum_a + b * di.qacc), None
+        sum_act = sum_act + b * di.act_dot if acts else sum_act
+        return (di, k, sum_k + b * k, sum_a + b * di.qacc, sum_act), None
 
-    (last, _, sum_k, sum_a), _ = jax.lax.scan(stage, (d, d.qvel, d.qvel, d.qacc), coef)
+    start = (d, d.qvel, d.qvel, d.qacc, d.act_dot if acts else ())
+    (last, _, sum_k, sum_a, sum_act), _ = jax.lax.scan(stage, start, coef)
     qpos = integrate_pos(m, q0, sum_k, h / 6.0)
     qvel = v0 + (h / 6.0) * sum_a
-    return last.replace(qpos=qpos, qvel=qvel, time=t0 + h)
+    act = next_activation(m, act0, sum_act / 6.0) if acts else last.act
+    return last.replace(qpos=qpos, qvel=qvel, act=act, time=t0 + h)
 
 
 def step(m: Model, d: Data, ctrl: jax.Array | None = None) -> Data:

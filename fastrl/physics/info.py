@@ -14,7 +14,7 @@ import collections
 import mujoco
 import numpy as np
 
-from fastrl.physics import collision_driver, constraint, equality, io, tendon
+from fastrl.physics import actuation, collision_driver, constraint, equality, io, tendon
 from fastrl.physics.types import GeomType, JointType, Model
 
 
@@ -78,6 +78,7 @@ def summary_lines(m: Model) -> list[str]:
         f"bodies          {m.nbody - 1} (+ world)",
         f"joints          {m.njnt} ({fmt(joints)}); nq {m.nq}, nv {m.nv}",
         f"actuators       {m.nu}",
+        f"activation      {_activation(m)}",
         f"tendons         {_tendons(m)}",
         f"geoms           {m.ngeom} ({fmt(geoms)})",
         f"contact pairs   {m.npair} kept of {all_pairs} geom pairs ({fmt(pairs)})",
@@ -95,6 +96,7 @@ def summary_lines(m: Model) -> list[str]:
         f"{nefc - ne - nfric - nlim} contact, "
         f"{'elliptic' if constraint.elliptic(m) else 'pyramidal'} cone; contact slots by condim: {condims})",
         f"solver          {'none traced' if nefc == 0 else _solver(m)}",
+        f"noslip          {_noslip(m) if nefc else 'none traced'}",
         f"integrator      {m.summary().split('integrator ')[1]}",
     ]
 
@@ -105,6 +107,28 @@ def _solver(m: Model) -> str:
     return (
         f"Newton as MuJoCo's (islands, tolerance {m.solver_tolerance:g}, up to {m.ls_iterations} "
         f"line-search evaluations), at most {m.solver_iterations} iterations"
+    )
+
+
+def _activation(m: Model) -> str:
+    """``N act (a filter, b integrator; c actearly, d clamped to actrange)``, or none."""
+    dyn = actuation.dynamic_actuators(m)
+    if not dyn.size:
+        return "none (every force from ctrl)"
+    kinds = collections.Counter(mujoco.mjtDyn(t).name[6:].lower() for t in m.actuator_dyntype[dyn])
+    early, limited = int(m.actuator_actearly[dyn].sum()), int(m.actuator_actlimited[dyn].sum())
+    kind = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
+    return f"{m.na} activations ({kind}; {early} actearly, {limited} clamped to actrange)"
+
+
+def _noslip(m: Model) -> str:
+    """The noslip post-pass and the rows it re-solves, or off."""
+    if not m.noslip_iterations:
+        return "off"
+    cones = sum(n for dim, _, n in constraint.contact_groups(m) if dim > 1)
+    return (
+        f"up to {m.noslip_iterations} Gauss-Seidel sweeps (tolerance {m.noslip_tolerance:g}) over "
+        f"{constraint.nfriction(m)} friction-loss rows and the friction of {cones} contact slots"
     )
 
 

@@ -78,6 +78,13 @@ class Model:
                                                tendon each actuator drives
       actuator_gaintype, actuator_biastype     (nu,)    0 fixed/none, 1 affine
       actuator_ctrllimited, forcelimited       (nu,)
+      na                                       activation variables (one per actuator with
+                                               activation dynamics)
+      actuator_dyntype                         (nu,)    mjtDyn: 0 none (force from ctrl), 1
+                                               integrator, 2 filter, 3 filterexact
+      actuator_actadr                          (nu,)    each actuator's entry in Data.act (-1: none)
+      actuator_actlimited, actuator_actearly   (nu,)    act clamped to actrange; force from the
+                                               next step's act (MuJoCo's actearly)
       jnt_actfrclimited                        (njnt,)
       ntendon                                  tendons, MuJoCo's ids; 0 when none acts on the
                                                dynamics (inert tendons alone are dropped)
@@ -108,6 +115,8 @@ class Model:
                                                objects (body or site for connect/weld)
       eq_active0                               (neq,)   1: active at reset (Data.eq_active)
       cone                                     0 pyramidal, 1 elliptic friction cone
+      noslip_iterations, noslip_tolerance      MuJoCo's noslip post-pass over the friction rows
+                                               (noslip.py); 0 iterations: none traced
       multiccd                                 MuJoCo's multi-contact for convex pairs (False:
                                                <flag multiccd="disable"/>, one contact a pair)
       solver_iterations                        static iteration count of the constraint solver
@@ -145,6 +154,7 @@ class Model:
       site_pos (nsite,3), site_quat (nsite,4)
       actuator_gear (nu,6), actuator_ctrlrange (nu,2), actuator_forcerange (nu,2)
       actuator_gainprm (nu,10), actuator_biasprm (nu,10)
+      actuator_dynprm (nu,10)   (dynprm[0] the filter's time constant), actuator_actrange (nu,2)
       pair_friction (npair,5), pair_solref (npair,2), pair_solimp (npair,5)
       pair_solreffriction (npair,2)                 the elliptic cone's friction solref; 0: solref
       pair_margin (npair,), pair_gap (npair,)       contact parameters, mixed as MuJoCo mixes them
@@ -199,6 +209,11 @@ class Model:
     actuator_trnid: np.ndarray
     actuator_gaintype: np.ndarray
     actuator_biastype: np.ndarray
+    na: int
+    actuator_dyntype: np.ndarray
+    actuator_actadr: np.ndarray
+    actuator_actlimited: np.ndarray
+    actuator_actearly: np.ndarray
     actuator_ctrllimited: np.ndarray
     actuator_forcelimited: np.ndarray
     jnt_actfrclimited: np.ndarray
@@ -231,6 +246,8 @@ class Model:
     eq_objtype: np.ndarray
     eq_active0: np.ndarray
     cone: int
+    noslip_iterations: int
+    noslip_tolerance: float
     multiccd: bool
     solver_iterations: int
     linesearch: str
@@ -286,6 +303,8 @@ class Model:
     actuator_forcerange: jax.Array
     actuator_gainprm: jax.Array
     actuator_biasprm: jax.Array
+    actuator_dynprm: jax.Array
+    actuator_actrange: jax.Array
     pair_friction: jax.Array
     pair_solref: jax.Array
     pair_solreffriction: jax.Array
@@ -339,7 +358,7 @@ class Model:
 class Data:
     """Simulation state and the quantities the pipeline derives from it (MuJoCo's names).
 
-    State:        qpos (nq,)  qvel (nv,)  ctrl (nu,)  time ()  qfrc_applied (nv,)
+    State:        qpos (nq,)  qvel (nv,)  ctrl (nu,)  act (na,)  time ()  qfrc_applied (nv,)
                   qacc_warmstart (nv,)  the last step's acceleration, the solver's starting point
                   mocap_pos (nmocap,3)  mocap_quat (nmocap,4)  poses of the mocap bodies (set them
                   between steps; a step holds them fixed)
@@ -353,7 +372,8 @@ class Data:
     Tendons:      ten_length (ntendon,)  ten_velocity (ntendon,)  ten_J (ntendon,nv) (dense ten_moment)
     Dynamics:     qM (nv,nv)  qfrc_bias (nv,)  qfrc_spring (nv,)  qfrc_damper (nv,)
                   qfrc_passive (nv,)  actuator_length (nu,)  actuator_velocity (nu,)
-                  actuator_force (nu,)  qfrc_actuator (nv,)  qfrc_smooth (nv,)  qacc (nv,)
+                  actuator_force (nu,)  act_dot (na,)  qfrc_actuator (nv,)  qfrc_smooth (nv,)
+                  qacc (nv,)
                   qacc_smooth (nv,)  acceleration without constraints
     Contacts:     contact_dist (ncand,)  contact_pos (ncand,3)  contact_frame (ncand,3,3) (rows:
                   normal, tangents); candidates of the static pair table, active where
@@ -372,6 +392,7 @@ class Data:
     qpos: jax.Array
     qvel: jax.Array
     ctrl: jax.Array
+    act: jax.Array
     time: jax.Array
     qfrc_applied: jax.Array
     qacc_warmstart: jax.Array
@@ -405,6 +426,7 @@ class Data:
     actuator_length: jax.Array
     actuator_velocity: jax.Array
     actuator_force: jax.Array
+    act_dot: jax.Array
     qfrc_actuator: jax.Array
     qfrc_smooth: jax.Array
     qacc: jax.Array

@@ -48,16 +48,8 @@ def test_public_api_shapes():
             ["tendon 't'", "narrower than twice its margin"],
         ),
         (
-            _xml(extra='<actuator><general name="mus" joint="j" dyntype="filter" dynprm="0.1"/></actuator>'),
-            ["'mus'", "activation dynamics"],
-        ),
-        (
-            BASE.format(
-                body='<geom type="plane" size="1 1 1"/>'
-                '<body><freejoint/><geom size="0.1" condim="6"/></body>',
-                extra='<option cone="elliptic" noslip_iterations="3"/>',
-            ),
-            ["noslip solver", "noslip_iterations=3"],
+            _xml(extra='<actuator><general name="mus" joint="j" dyntype="muscle"/></actuator>'),
+            ["'mus'", "activation dynamics mjDYN_MUSCLE"],
         ),
         (
             BASE.format(
