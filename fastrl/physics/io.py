@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from fastrl.physics import smooth, tree
 from fastrl.physics.collision_driver import FACES, GJK_PAIRS, SUPPORTED, contact_layout
 from fastrl.physics.constraint import contact_slots, default_nconmax
 from fastrl.physics.constraint import sizes as constraint_sizes
@@ -15,6 +16,16 @@ from fastrl.physics.types import Data, GeomType, Integrator, JointType, Model
 
 _DSBL = mujoco.mjtDisableBit
 _INTEGRATORS = {"euler": Integrator.EULER, "rk4": Integrator.RK4, "implicitfast": Integrator.IMPLICITFAST}
+# The activation dynamics fastrl simulates (actuation.py); muscles, DC motors and PID servos not.
+_DYNTYPES = tuple(
+    int(k)
+    for k in (
+        mujoco.mjtDyn.mjDYN_NONE,
+        mujoco.mjtDyn.mjDYN_INTEGRATOR,
+        mujoco.mjtDyn.mjDYN_FILTER,
+        mujoco.mjtDyn.mjDYN_FILTEREXACT,
+    )
+)
 
 
 class UnsupportedFeatureError(ValueError):
@@ -57,8 +68,6 @@ def _check_supported(m: mujoco.MjModel) -> None:
     ]:
         if count:
             problems.append(f"{what} ({count} in the model)")
-    if m.opt.noslip_iterations > 0 and not flags & _DSBL.mjDSBL_CONSTRAINT:
-        problems.append(f"the noslip solver (<option noslip_iterations={m.opt.noslip_iterations}>)")
     if contacts_enabled(m) and (_nonzero(m, "geom_adhesion") or _nonzero(m, "pair_adhesion")):
         problems.append("contact adhesion (geom or pair adhesion)")
     condims = np.concatenate([m.geom_condim, m.pair_dim])
@@ -88,9 +97,14 @@ def _check_supported(m: mujoco.MjModel) -> None:
             problems.append(f"actuator {name!r}: transmission mjTRN_SITE with a refsite")
         elif joint and m.jnt_type[jid] not in (JointType.HINGE, JointType.SLIDE):
             problems.append(f"actuator {name!r}: drives a free/ball joint")
-        if m.actuator_dyntype[i] != int(mujoco.mjtDyn.mjDYN_NONE):
+        if m.actuator_dyntype[i] not in _DYNTYPES:
             dyn = mujoco.mjtDyn(m.actuator_dyntype[i]).name
-            problems.append(f"actuator {name!r}: activation dynamics {dyn} (use timeconst=0)")
+            problems.append(
+                f"actuator {name!r}: activation dynamics {dyn} (fastrl simulates integrator, "
+                "filter and filterexact)"
+            )
+        elif m.actuator_actnum[i] != (m.actuator_dyntype[i] != int(mujoco.mjtDyn.mjDYN_NONE)):
+            problems.append(f"actuator {name!r}: {m.actuator_actnum[i]} activation variables (actdim)")
         if m.actuator_gaintype[i] > int(mujoco.mjtGain.mjGAIN_AFFINE):
             problems.append(f"actuator {name!r}: gain {mujoco.mjtGain(m.actuator_gaintype[i]).name}")
         if m.actuator_biastype[i] > int(mujoco.mjtBias.mjBIAS_AFFINE):
@@ -218,6 +232,10 @@ def fluid_enabled(m: mujoco.MjModel) -> bool:
     return bool(medium and (m.opt.disableflags & off) != off)
 
 
+def constraints_enabled(m: mujoco.MjModel) -> bool:
+    return not m.opt.disableflags & _DSBL.mjDSBL_CONSTRAINT
+
+
 def contacts_enabled(m: mujoco.MjModel) -> bool:
     return not m.opt.disableflags & (_DSBL.mjDSBL_CONTACT | _DSBL.mjDSBL_CONSTRAINT)
 
@@ -230,38 +248,56 @@ def frictionloss_enabled(m: mujoco.MjModel) -> bool:
     return not m.opt.disableflags & (_DSBL.mjDSBL_FRICTIONLOSS | _DSBL.mjDSBL_CONSTRAINT)
 
 
+def _geom_pairs_off_world(m: mujoco.MjModel, chunk: int = 1 << 22) -> tuple[np.ndarray, np.ndarray]:
+    """Every geom pair ``g1 < g2`` with at least one geom off the world body's weld, unordered.
+
+    Two world-welded geoms never collide, so a scene of many static geoms costs O(moving x
+    ngeom), not O(ngeom^2); the pairs are built in blocks of about ``chunk`` to bound the memory.
+    """
+    weld = m.body_weldid[m.geom_bodyid]
+    moving = np.flatnonzero(weld != 0)
+    static = np.flatnonzero(weld == 0)
+    rows = max(1, chunk // max(1, m.ngeom))
+    g1s, g2s = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for start in range(0, moving.size, rows):
+        part = moving[start : start + rows]
+        later = moving[start:]  # a moving partner pairs with the lower of the two only
+        a = np.concatenate([np.repeat(part, static.size), np.repeat(part, later.size)])
+        b = np.concatenate([np.tile(static, part.size), np.tile(later, part.size)])
+        keep = (weld[b] == 0) | (b > a)
+        g1s.append(np.minimum(a, b)[keep])
+        g2s.append(np.maximum(a, b)[keep])
+    return np.concatenate(g1s), np.concatenate(g2s)
+
+
 def candidate_geom_pairs(m: mujoco.MjModel) -> list[tuple[int, int]]:
     """Geom pairs that MuJoCo's broadphase filter could let touch (contype/conaffinity, exclusions).
 
     Excludes pairs in one welded body, pairs of two world-welded geoms, parent-child pairs (unless
     filterparent is disabled) and ``<exclude>``d body pairs; adds explicit ``<pair>`` elements,
     which bypass those filters and replace the filtered pair of the same two geoms (MuJoCo keeps
-    the other geom pairs of the same two bodies).
+    the other geom pairs of the same two bodies). The filtered pairs come in ascending
+    ``(g1, g2)`` order, then the explicit ones. The filters are numpy masks over the pairs with a
+    moving geom, so a scene of many static geoms loads in time linear in their number.
     """
     explicit = _explicit_pairs(m)
-    weld = m.body_weldid
-    parent = m.body_parentid
-    filterparent = not m.opt.disableflags & _DSBL.mjDSBL_FILTERPARENT
-    excluded = {(int(s) >> 16, int(s) & 0xFFFF) for s in m.exclude_signature}
-    pairs = []
-    for g1 in range(m.ngeom):
-        for g2 in range(g1 + 1, m.ngeom):
-            if not (m.geom_contype[g1] & m.geom_conaffinity[g2]) and not (
-                m.geom_contype[g2] & m.geom_conaffinity[g1]
-            ):
-                continue
-            b1, b2 = m.geom_bodyid[g1], m.geom_bodyid[g2]
-            w1, w2 = weld[b1], weld[b2]
-            if w1 == w2 or (w1 == 0 and w2 == 0):
-                continue
-            if filterparent and w1 != 0 and w2 != 0:
-                if weld[parent[w1]] == w2 or weld[parent[w2]] == w1:
-                    continue
-            if (min(b1, b2), max(b1, b2)) in excluded or (b1 << 16 | b2) in excluded:
-                continue
-            if frozenset((g1, g2)) in explicit:
-                continue
-            pairs.append((g1, g2))
+    g1, g2 = _geom_pairs_off_world(m)
+    ctype, caff = m.geom_contype, m.geom_conaffinity
+    ok = ((ctype[g1] & caff[g2]) != 0) | ((ctype[g2] & caff[g1]) != 0)
+    b1, b2 = m.geom_bodyid[g1], m.geom_bodyid[g2]
+    weld, parent = m.body_weldid, m.body_parentid
+    w1, w2 = weld[b1], weld[b2]
+    ok &= w1 != w2
+    if not m.opt.disableflags & _DSBL.mjDSBL_FILTERPARENT:
+        ok &= ~((w1 != 0) & (w2 != 0) & ((weld[parent[w1]] == w2) | (weld[parent[w2]] == w1)))
+    # An <exclude> signature is (lower body id << 16) | higher body id.
+    low, high = np.minimum(b1, b2).astype(np.int64), np.maximum(b1, b2).astype(np.int64)
+    signature = np.asarray(m.exclude_signature, np.int64)
+    ok &= ~((high < 1 << 16) & np.isin(low << 16 | high, signature))
+    key = g1 * m.ngeom + g2
+    ok &= ~np.isin(key, np.array([min(p) * m.ngeom + max(p) for p in explicit], np.int64))
+    order = np.argsort(key[ok], kind="stable")
+    pairs = list(zip(g1[ok][order].tolist(), g2[ok][order].tolist(), strict=True))
     pairs.extend(tuple(sorted(p)) for p in explicit)
     # MuJoCo's collision table is indexed with the lower geom type first.
     return [(a, b) if m.geom_type[a] <= m.geom_type[b] else (b, a) for a, b in pairs]
@@ -422,6 +458,18 @@ def _checked(m: mujoco.MjModel, integrator, solver_iterations, nconmax, linesear
     raise UnsupportedFeatureError(
         f"integrator {name} is not implemented; pass integrator='euler', 'rk4' or 'implicitfast' to load_mjcf"
     )
+
+
+def _activation_fields(m: mujoco.MjModel) -> dict:
+    """``Model``'s activation-dynamics fields (``_check_supported`` allows one act per actuator
+    with dynamics and none without)."""
+    i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
+    f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
+    return dict(
+        na=int(m.na), actuator_dyntype=i32(m.actuator_dyntype), actuator_actadr=i32(m.actuator_actadr),
+        actuator_actlimited=i32(m.actuator_actlimited), actuator_actearly=i32(m.actuator_actearly),
+        actuator_dynprm=f(m.actuator_dynprm), actuator_actrange=f(m.actuator_actrange),
+    )  # fmt: skip
 
 
 def _tendon_fields(m: mujoco.MjModel) -> dict:
@@ -591,6 +639,41 @@ def _contact_fields(m: mujoco.MjModel, nconmax: int | None, mjx_caps: bool) -> d
     )  # fmt: skip
 
 
+def _check_float32_mass(m: mujoco.MjModel, model: Model) -> None:
+    """Refuses a float32 model with a tree ``smooth.ARTICULATED_MIN_DEPTH`` or more dofs deep
+    whose mass matrix at ``qpos0`` float32 cannot factorise, where fastrl must factorise M's
+    float32 entries: the constraint solver's ``M + J^T D J``, implicitfast's ``M - h D``, or M
+    with tendon armature. (``smooth.solve_mass`` factorises a deep tree's M alone from its
+    articulated inertias, which float32 holds.) Such a model's first step would be NaN."""
+    depth = len(tree.dof_levels(model))
+    if np.dtype(model.body_mass.dtype).itemsize >= 8 or depth < smooth.ARTICULATED_MIN_DEPTH:
+        return
+    needs = {
+        "its constraint solver": constraint_sizes(model)[1] > 0,
+        "the implicitfast integrator": model.integrator == Integrator.IMPLICITFAST,
+        "a solve with its tendon armature": model.armature_tendons.size > 0,
+    }
+    if not any(needs.values()):
+        return
+    d = mujoco.MjData(m)
+    for stage in (mujoco.mj_kinematics, mujoco.mj_comPos, mujoco.mj_crb):
+        stage(m, d)
+    qm = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, qm)
+    try:
+        np.linalg.cholesky(qm.astype(np.float32))
+    except np.linalg.LinAlgError:
+        deepest = int(m.dof_jntid[tree.dof_levels(model)[-1][0]])
+        joint = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, deepest) or str(deepest)
+        raise UnsupportedFeatureError(
+            "fastrl cannot simulate this model in float32: "
+            + " and ".join(name for name, used in needs.items() if used)
+            + f" must factorise the mass matrix from its float32 entries, and for a kinematic chain"
+            f" {depth} dofs deep (down to joint {joint!r}) float32 cannot hold it (its Cholesky"
+            " factorisation at qpos0 breaks down); enable float64 (jax_enable_x64)"
+        ) from None
+
+
 def model_from_mujoco(
     m: mujoco.MjModel,
     integrator: str | None = None,
@@ -611,7 +694,7 @@ def model_from_mujoco(
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
     f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
     gravity = m.opt.gravity * (0.0 if m.opt.disableflags & _DSBL.mjDSBL_GRAVITY else 1.0)
-    return Model(
+    model = Model(
         nq=m.nq, nv=m.nv, nu=m.nu, nbody=m.nbody, njnt=m.njnt, ngeom=m.ngeom, nsite=m.nsite,
         **_tendon_fields(m), **_contact_fields(m, nconmax, mjx_caps),
         body_parentid=i32(m.body_parentid), body_rootid=i32(m.body_rootid),
@@ -631,7 +714,9 @@ def model_from_mujoco(
         actuator_ctrllimited=i32(m.actuator_ctrllimited),
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
-        cone=int(m.opt.cone),
+        cone=int(m.opt.cone), **_activation_fields(m),
+        noslip_iterations=int(m.opt.noslip_iterations) if constraints_enabled(m) else 0,
+        noslip_tolerance=float(m.opt.noslip_tolerance),
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
         solver_iterations=int(solver_iterations), linesearch=linesearch,
@@ -662,6 +747,8 @@ def model_from_mujoco(
         impratio=f(m.opt.impratio),
         density=f(m.opt.density), viscosity=f(m.opt.viscosity), wind=f(m.opt.wind),
     )  # fmt: skip
+    _check_float32_mass(m, model)
+    return model
 
 
 def load_mjcf(
@@ -707,8 +794,9 @@ def load_mjcf(
     return model_from_mujoco(m, integrator, solver_iterations, nconmax, linesearch, mjx_caps)
 
 
-def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
-    """A ``Data`` at ``qpos0`` (or ``qpos``) with zero velocity; derived fields are zero.
+def make_data(model: Model, qpos=None, qvel=None, ctrl=None, act=None) -> Data:
+    """A ``Data`` at ``qpos0`` (or ``qpos``) with zero velocity and activations (or ``act``);
+    derived fields are zero.
 
     Call ``physics.forward`` to fill the derived fields, as after ``mj_forward``.
     """
@@ -718,14 +806,17 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None) -> Data:
     qpos = model.qpos0 if qpos is None else jnp.asarray(qpos, dtype)
     qvel = z(nv) if qvel is None else jnp.asarray(qvel, dtype)
     ctrl = z(nu) if ctrl is None else jnp.asarray(ctrl, dtype)
-    for name, value, n in (("qpos", qpos, model.nq), ("qvel", qvel, nv), ("ctrl", ctrl, nu)):
+    act = z(model.na) if act is None else jnp.asarray(act, dtype)
+    given = (("qpos", qpos, model.nq), ("qvel", qvel, nv), ("ctrl", ctrl, nu), ("act", act, model.na))
+    for name, value, n in given:
         if value.shape != (n,):
             raise ValueError(f"{name} has shape {value.shape}; this model needs ({n},)")
     eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (nb, 3, 3))
     ncon, nefc = constraint_sizes(model)
     nslot = contact_slots(model)
     return Data(
-        qpos=qpos, qvel=qvel, ctrl=ctrl, time=z(), qfrc_applied=z(nv), qacc_warmstart=z(nv),
+        qpos=qpos, qvel=qvel, ctrl=ctrl, act=act, act_dot=z(model.na), time=z(), qfrc_applied=z(nv),
+        qacc_warmstart=z(nv),
         mocap_pos=model.body_pos[model.mocap_bodies],
         mocap_quat=model.body_quat[model.mocap_bodies],
         eq_active=jnp.asarray(model.eq_active0.astype(bool)),

@@ -2,13 +2,16 @@
 
 Each stage is a pure ``(model, data) -> data`` function written for one environment; batches come
 from ``jax.vmap``. Per-joint-type code is chosen while tracing from the static joint types.
-Recursions over the tree are either one pass per tree depth (kinematics, which composes rotations)
-or products with constant ancestor matrices (every sum over a subtree or a path).
+Recursions over the tree are either one pass per tree depth (kinematics, which composes rotations;
+a ``lax.scan`` over the depths for a deep tree) or products with constant ancestor matrices (every
+sum over a subtree or a path). A deep tree in float32 solves with M through its articulated
+inertias (``solve_mass``), a scan from the leaves and one from the roots.
 """
 
 from __future__ import annotations
 
 import functools
+import typing
 
 import jax
 import jax.numpy as jnp
@@ -84,27 +87,63 @@ def _body_local(m: Model, jtrans, jquat):
     return t, q, pre_t, pre_q
 
 
-def kinematics(m: Model, d: Data) -> Data:
-    """Body, joint, geom and site poses in the world frame (mj_kinematics)."""
-    dtype = d.qpos.dtype
-    jtrans, jquat = _joint_local(m, d.qpos)
-    lt, lq, pre_t, pre_q = _body_local(m, jtrans, jquat)
-    if m.mocap_bodies.size:  # children of the world, placed by Data.mocap_pos/mocap_quat
-        lt = lt.at[m.mocap_bodies].set(d.mocap_pos)
-        lq = lq.at[m.mocap_bodies].set(math.quat_normalize(d.mocap_quat))
-    # One pass per tree depth: rows of (pos, quat) are appended level by level.
-    pos = jnp.zeros((1, 3), dtype)
-    quat = jnp.array([[1.0, 0, 0, 0]], dtype)
+def _world_frames(m: Model, levels: list[np.ndarray], lt: jax.Array, lq: jax.Array):
+    """Body poses (nbody, 3), (nbody, 4) in the world from those relative to their parents, one
+    unrolled pass per tree depth: rows of (pos, quat) are appended level by level."""
+    pos = jnp.zeros((1, 3), lt.dtype)
+    quat = jnp.array([[1.0, 0, 0, 0]], lt.dtype)
     row = np.zeros(m.nbody, np.int64)
     n = 1
-    for level in tree.body_levels(m):
+    for level in levels:
         parent = row[m.body_parentid[level]]
         p, q = _compose(pos[parent], quat[parent], lt[level], lq[level])
         pos = jnp.concatenate([pos, p])
         quat = jnp.concatenate([quat, math.quat_normalize(q)])
         row[level] = n + np.arange(level.size)
         n += level.size
-    xpos, xquat = pos[row], quat[row]
+    return pos[row], quat[row]
+
+
+# From this many bodies deep, kinematics composes the poses in a ``lax.scan`` over the depths
+# instead of unrolling them: unrolled, a 200-hinge chain's passes take 24 s of its step's 29 s
+# compile (XLA:CPU, optimisation level 0); scanned, the step compiles in 2.4 s. Shallower trees
+# (fastrl's environments are at most 10 bodies deep) keep the unrolled passes, which run no loop.
+SCANNED_KINEMATICS_MIN_DEPTH = 32
+
+
+def _world_frames_scanned(m: Model, levels: list[np.ndarray], lt: jax.Array, lq: jax.Array):
+    """``_world_frames`` as a ``lax.scan`` over the depths, each level padded to the widest one
+    (padding slots read the world's row and write a spare row past the last body)."""
+    ids = np.full((len(levels), max(level.size for level in levels)), m.nbody, np.int64)
+    for i, level in enumerate(levels):
+        ids[i, : level.size] = level
+    parent = np.append(m.body_parentid, 0)[ids]
+    spare = lambda x: jnp.concatenate([x, x[:1]])  # noqa: E731
+    lt, lq = spare(lt), spare(lq)
+    start = (jnp.zeros((m.nbody + 1, 3), lt.dtype), jnp.zeros((m.nbody + 1, 4), lt.dtype).at[:, 0].set(1.0))
+
+    def level(frames, rows):
+        pos, quat = frames
+        k, p = rows
+        t, q = _compose(pos[p], quat[p], lt[k], lq[k])
+        return (pos.at[k].set(t), quat.at[k].set(math.quat_normalize(q))), None
+
+    (pos, quat), _ = jax.lax.scan(level, start, (ids, parent))
+    return pos[: m.nbody], quat[: m.nbody]
+
+
+def kinematics(m: Model, d: Data) -> Data:
+    """Body, joint, geom and site poses in the world frame (mj_kinematics)."""
+    jtrans, jquat = _joint_local(m, d.qpos)
+    lt, lq, pre_t, pre_q = _body_local(m, jtrans, jquat)
+    if m.mocap_bodies.size:  # children of the world, placed by Data.mocap_pos/mocap_quat
+        lt = lt.at[m.mocap_bodies].set(d.mocap_pos)
+        lq = lq.at[m.mocap_bodies].set(math.quat_normalize(d.mocap_quat))
+    levels = tree.body_levels(m)
+    if len(levels) >= SCANNED_KINEMATICS_MIN_DEPTH:
+        xpos, xquat = _world_frames_scanned(m, levels, lt, lq)
+    else:
+        xpos, xquat = _world_frames(m, levels, lt, lq)
     xmat = math.quat_to_mat(xquat)
     xipos = xpos + math.quat_rotate(xquat, m.body_ipos)
     ximat = math.quat_to_mat(math.quat_mul(xquat, m.body_iquat))
@@ -238,6 +277,57 @@ def _solve_factored(anc, factor, vec):
     return jnp.stack(x)
 
 
+# From this many scalar elimination steps (``elimination_steps``) a tree structure is factorised
+# level by level (``_factor_levels``) instead of entry by entry: the elementwise program grows with
+# the sum of depth^2 and XLA:CPU's compile time with it. The Humanoid's M takes 778 steps (kept
+# elementwise: its factor and solve run in ~0.7 us/env), dm_control's CMU humanoid's 8,288,
+# whose elementwise factor and solve are 25k instructions of optimised HLO per use.
+LEVEL_FACTOR_MIN_STEPS = 2000
+
+
+def elimination_steps(anc: tuple[tuple[int, ...], ...]) -> int:
+    """Scalar updates of the elementwise L^T D L elimination of the structure ``anc``."""
+    return sum(len(chain) * (len(chain) + 1) // 2 for chain in anc)
+
+
+def _structure_levels(anc: tuple[tuple[int, ...], ...]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """(nv, nv) 0/1 mask of each row's strict ancestors, and the rows grouped by their number of
+    ancestors, roots first: no row of a group is an ancestor of another."""
+    nv = len(anc)
+    mask = np.zeros((nv, nv))
+    for k, chain in enumerate(anc):
+        mask[k, list(chain)] = 1.0
+    depth = np.array([len(chain) for chain in anc], np.int64)
+    return mask, [np.flatnonzero(depth == k) for k in range(int(depth.max(initial=-1)) + 1)]
+
+
+def _factor_levels(anc, qm):
+    """``_factor`` with one dense step per level of the tree, from the leaves: a level's rows are
+    final once every deeper level is eliminated, and their updates to the shared ancestors add up
+    (``scale^T rows``, zero off the ancestor chains), so the program grows with the depth only."""
+    mask, levels = _structure_levels(anc)
+    q = jnp.asarray(qm)
+    for level in reversed(levels[1:]):  # roots update nothing
+        rows = q[level] * _const(mask[level], q)
+        scale = rows / q[level, level][:, None]
+        q = q - jnp.matmul(scale.T, rows, precision=jax.lax.Precision.HIGHEST)
+    diag = jnp.diagonal(q)
+    return jnp.eye(len(anc), dtype=q.dtype) + q * _const(mask, q) / diag[:, None], diag
+
+
+def _solve_levels(anc, factor, vec):
+    """``_solve_factored`` for ``_factor_levels``' factor: one matrix-vector product per level."""
+    mask, levels = _structure_levels(anc)
+    low = factor[0] * _const(mask, factor[0])
+    x = jnp.asarray(vec)
+    for level in reversed(levels[1:]):  # x <- L^-T x, from the leaves
+        x = x - jnp.matmul(x[level], low[level], precision=jax.lax.Precision.HIGHEST)
+    x = x / factor[1]
+    for level in levels[1:]:  # x <- L^-1 x, from the roots
+        x = x.at[level].add(-jnp.matmul(low[level], x, precision=jax.lax.Precision.HIGHEST))
+    return x
+
+
 def ancestors(m: Model) -> tuple[tuple[int, ...], ...]:
     """Each dof's ancestors, nearest first: the structure of M and of its factor."""
     return tuple(tuple(chain) for chain in tree.dof_ancestors(m))
@@ -349,6 +439,8 @@ def _factor_any(anc, qm):
         return jax.lax.linalg.cholesky(qm, symmetrize_input=False)
     if which == "columns":
         return _dense_cholesky(qm)
+    if elimination_steps(anc) >= LEVEL_FACTOR_MIN_STEPS:
+        return _factor_levels(anc, qm)
     return _factor(anc, qm)
 
 
@@ -358,6 +450,8 @@ def _solve_any(anc, factor, vec):
         return jax.scipy.linalg.cho_solve((factor, True), vec)
     if which == "columns":
         return _dense_cho_solve(factor, vec)
+    if elimination_steps(anc) >= LEVEL_FACTOR_MIN_STEPS:
+        return _solve_levels(anc, factor, vec)
     return _solve_factored(anc, factor, vec)
 
 
@@ -395,3 +489,167 @@ def solve(m: Model, qm: jax.Array, vec: jax.Array) -> jax.Array:
     the rule ``vec_bar = qm^-1 x_bar``, ``qm_bar = -vec_bar x^T`` needs one more solve instead.
     """
     return _solve(ancestors(m), qm, vec)
+
+
+# From this many dofs deep a float32 solve with M goes through the articulated inertias
+# (``solve_mass``) instead of M's entries. The mass matrix of a long chain is ill-conditioned (a
+# chain of capsules: scaled condition number 4e4 at 10 links, 2e7 at 40, 1e10 at 200), and float32
+# entries lose its small eigenvalues: M^-1 f with MuJoCo's own M rounded to float32 is off by 1e-3
+# of the largest acceleration at depth 20, 1e-2 at 40 and 0.1 at 60, and from about 100 links the
+# rounded M is not positive definite (NaN). The articulated form is off by 4e-5 to 1e-4 up to 90
+# links and 2e-3 at 200. fastrl's environments (the Humanoid's tree is 13 dofs deep) keep M.
+ARTICULATED_MIN_DEPTH = 32
+
+
+def articulated(m: Model, dtype: jnp.dtype) -> bool:
+    """Whether ``solve_mass`` factorises M from the articulated inertias: in float32 (or
+    narrower) for a dof tree at least ``ARTICULATED_MIN_DEPTH`` deep without tendon armature
+    (whose ``J^T a J`` has no articulated form)."""
+    deep = len(tree.dof_levels(m)) >= ARTICULATED_MIN_DEPTH
+    return deep and jnp.finfo(dtype).bits < 64 and not m.armature_tendons.size
+
+
+class _Articulated(typing.NamedTuple):
+    """``M + diag(extra)`` factorised from the leaves up in articulated-body form: ``M = L^T D L``
+    with ``L[k, i] = motion_i . u_k / pivot_k`` for each ancestor i of dof k (Featherstone's
+    articulated-body algorithm). Each dof's quantities are about its own anchor, so no float32
+    number holds a lever arm across the whole tree, as the com-based ``cinert`` does.
+
+    Fields (per dof): ``motion`` (nv, 6) its motion axis; ``u`` (nv, 6) its articulated inertia
+    times ``motion``; ``pivot`` (nv,) ``motion . u`` plus armature and extra: the diagonal D;
+    ``shift`` (nv, 6, 6) the motion transform from its parent dof's anchor to its own.
+    """
+
+    motion: jax.Array
+    u: jax.Array
+    pivot: jax.Array
+    shift: jax.Array
+
+
+def _skew(v: jax.Array) -> jax.Array:
+    """(..., 3, 3) cross-product matrices: ``_skew(v) @ x = v x x``."""
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    o = jnp.zeros_like(x)
+    return jnp.stack([jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2)
+
+
+def _blocks(a: jax.Array, b: jax.Array, c: jax.Array, e: jax.Array) -> jax.Array:
+    """(..., 6, 6) from the 3 x 3 blocks ``[[a, b], [c, e]]``."""
+    return jnp.concatenate([jnp.concatenate([a, b], -1), jnp.concatenate([c, e], -1)], -2)
+
+
+def _transform(d: jax.Array) -> jax.Array:
+    """(n, 6, 6) ``T``: ``T x`` is the motion ``x`` (rotation, velocity at a point q) seen at
+    ``q + d``; ``T^T f`` moves a force from ``q + d`` to q, and ``T^T A T`` an inertia."""
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=d.dtype), d.shape[:-1] + (3, 3))
+    return _blocks(eye, jnp.zeros_like(eye), -_skew(d), eye)
+
+
+def _inertia_at(m: Model, d: Data, bodies: np.ndarray, point: jax.Array) -> jax.Array:
+    """(n, 6, 6) the spatial inertias of ``bodies`` about ``point`` (n, 3), in world axes."""
+    r = d.xipos[bodies] - point
+    mass = m.body_mass[bodies][:, None, None]
+    rot = d.ximat[bodies]
+    eye = jnp.eye(3, dtype=r.dtype)
+    inertia = math.matmul(rot * m.body_inertia[bodies][:, None, :], jnp.swapaxes(rot, -1, -2))
+    inertia = inertia + mass * (jnp.sum(r * r, -1)[:, None, None] * eye - r[:, :, None] * r[:, None, :])
+    coupling = mass * _skew(r)
+    return _blocks(inertia, coupling, jnp.swapaxes(coupling, -1, -2), mass * eye)
+
+
+def _level_table(m: Model) -> tuple[np.ndarray, np.ndarray]:
+    """(depth, width) dof ids of each level of the dof tree (``tree.dof_levels``) and their parents.
+
+    Padding slots hold ``nv + 1``, a sink row that stays zero; a root's parent is ``nv``, a row
+    the passes from the roots only read (zero) and the passes from the leaves only write.
+    """
+    levels = tree.dof_levels(m)
+    ids = np.full((len(levels), max(level.size for level in levels)), m.nv + 1, np.int64)
+    for i, level in enumerate(levels):
+        ids[i, : level.size] = level
+    parent = np.append(np.where(m.dof_parentid >= 0, m.dof_parentid, m.nv), [m.nv, m.nv + 1])
+    return ids, parent[ids]
+
+
+def _padded(x: jax.Array, fill: float = 0.0) -> jax.Array:
+    """``x`` with the rows ``nv`` and ``nv + 1`` of ``_level_table`` appended."""
+    return jnp.concatenate([x, jnp.full((2,) + x.shape[1:], fill, x.dtype)])
+
+
+def _articulated_factor(m: Model, d: Data, extra: jax.Array) -> _Articulated:
+    """The articulated factor of ``M + diag(extra)`` at the poses of ``d``: a ``lax.scan`` over
+    the depths from the leaves, so that the program does not grow with the depth."""
+    axis, rot, anchor = _dof_axes(m, d)
+    rotc = _const(rot[:, None], axis)
+    motion = _padded(jnp.concatenate([axis * rotc, axis * (1 - rotc)], -1))
+    parent = np.where(m.dof_parentid >= 0, m.dof_parentid, np.arange(m.nv))
+    shift = _padded(_transform(anchor - anchor[parent]))
+    owner = tree.body_inertia_dof(m)
+    bodies = np.flatnonzero(owner >= 0)
+    own = jnp.zeros((m.nv + 2, 6, 6), axis.dtype)
+    own = own.at[owner[bodies]].add(_inertia_at(m, d, bodies, anchor[owner[bodies]]))
+    pivot_extra = _padded(m.dof_armature + extra, 1.0)
+
+    def level(passed, ids):
+        k, p = ids
+        inertia = own[k] + passed[k]  # with the children's articulated inertias, less their axis
+        u = jnp.sum(inertia * motion[k][:, None, :], -1)
+        pivot = jnp.sum(motion[k] * u, -1) + pivot_extra[k]
+        rest = inertia - u[:, :, None] * u[:, None, :] / pivot[:, None, None]
+        t = shift[k]
+        return passed.at[p].add(math.matmul(jnp.swapaxes(t, -1, -2), math.matmul(rest, t))), (u, pivot)
+
+    ids, par = _level_table(m)
+    _, (u, pivot) = jax.lax.scan(level, jnp.zeros_like(own), (ids, par), reverse=True)
+    flat = ids.reshape(-1)
+    u = jnp.zeros((m.nv + 2, 6), u.dtype).at[flat].set(u.reshape(-1, 6))
+    pivot = jnp.ones(m.nv + 2, pivot.dtype).at[flat].set(pivot.reshape(-1))
+    return _Articulated(motion, u, pivot, shift)
+
+
+def _articulated_solve(m: Model, f: _Articulated, vec: jax.Array) -> jax.Array:
+    """``x = L^-1 D^-1 L^-T vec`` for the articulated factor ``f``: a pass from the leaves (the
+    force each subtree passes to its parent), then one from the roots (the accelerations)."""
+    ids, par = _level_table(m)
+    flat = ids.reshape(-1)
+    vec = _padded(vec)
+
+    def up(force, ids):  # L^-T, then D^-1
+        k, p = ids
+        y = (vec[k] - jnp.sum(f.motion[k] * force[k], -1)) / f.pivot[k]
+        passed = force[k] + f.u[k] * y[:, None]
+        return force.at[p].add(jnp.sum(f.shift[k] * passed[:, :, None], -2)), y  # T^T passed
+
+    _, y = jax.lax.scan(up, jnp.zeros((m.nv + 2, 6), vec.dtype), (ids, par), reverse=True)
+    z = jnp.zeros_like(vec).at[flat].set(y.reshape(-1))
+
+    def down(acc, ids):  # L^-1: less what the ancestors' accelerations ask of each dof
+        k, p = ids
+        base = jnp.sum(f.shift[k] * acc[p][:, None, :], -1)
+        x = z[k] - jnp.sum(f.u[k] * base, -1) / f.pivot[k]
+        return acc.at[k].set(base + f.motion[k] * x[:, None]), x
+
+    _, x = jax.lax.scan(down, jnp.zeros((m.nv + 2, 6), vec.dtype), (ids, par))
+    return jnp.zeros_like(vec).at[flat].set(x.reshape(-1))[: m.nv]
+
+
+def solve_mass(m: Model, d: Data, vec: jax.Array, extra: jax.Array | None = None) -> jax.Array:
+    """``(M + diag(extra))^-1 vec`` with the mass matrix of ``d`` (after ``crb``).
+
+    Float32 trees at least ``ARTICULATED_MIN_DEPTH`` deep (``articulated``) factorise from each
+    dof's articulated inertia, about its own anchor, rather than from ``d.qM``, whose float32
+    entries cannot hold a long chain's smallest eigenvalues; the rest ``solve(m, d.qM + diag(extra),
+    vec)``.
+
+    Args:
+      m: the model.
+      d: the data, with ``qM`` and the poses it was computed at.
+      vec: (nv,) the right-hand side.
+      extra: (nv,) added to M's diagonal (implicit damping's ``h B``); None for none.
+    Returns:
+      (nv,) the solution.
+    """
+    if not articulated(m, vec.dtype):
+        return solve(m, d.qM if extra is None else d.qM + jnp.diag(extra), vec)
+    extra = jnp.zeros_like(vec) if extra is None else extra
+    return _articulated_solve(m, _articulated_factor(m, d, extra), vec)

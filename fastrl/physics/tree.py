@@ -47,6 +47,25 @@ def dof_ancestors(m: Model) -> list[list[int]]:
     return out
 
 
+def dof_levels(m: Model) -> list[np.ndarray]:
+    """Dofs grouped by depth in the dof tree (roots first), parents always in the group before."""
+    depth = np.zeros(m.nv, np.int64)
+    for i in range(m.nv):  # a dof's parent comes before it
+        p = m.dof_parentid[i]
+        depth[i] = depth[p] + 1 if p >= 0 else 1
+    return [np.flatnonzero(depth == k) for k in range(1, int(depth.max(initial=0)) + 1)]
+
+
+def body_inertia_dof(m: Model) -> np.ndarray:
+    """(nbody,) the dof whose articulated inertia carries each body's inertia: the last dof of the
+    nearest body at or above it that has dofs (-1 for bodies welded to the world)."""
+    out = np.full(m.nbody, -1, np.int64)
+    for b in range(1, m.nbody):  # a body's parent comes before it
+        n = m.body_dofnum[b]
+        out[b] = m.body_dofadr[b] + n - 1 if n else out[m.body_parentid[b]]
+    return out
+
+
 def dof_ancestor_mask(m: Model) -> np.ndarray:
     """(nv, nv) 0/1 lower-triangular mask: ``[i, j] = 1`` iff dof j is i or an ancestor of i.
 
