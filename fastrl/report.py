@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import sys
 from pathlib import Path
@@ -29,6 +30,16 @@ def read_metrics(path: str | Path) -> dict[str, np.ndarray]:
     for key in rows[0]:
         cols[key] = np.array([float(r[key]) if r.get(key) not in ("", None) else np.nan for r in rows])
     return cols
+
+
+def _save_png(fig, path: str | Path) -> None:
+    """Writes the figure whole or not at all (a full disk leaves the previous PNG, not 0 bytes),
+    never through a link in the folder."""
+    from fastrl.training.files import write_bytes  # the training package imports this module
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    write_bytes(path, buf.getvalue())
 
 
 def plot_run(csv_path: str | Path, png_path: str | Path, title: str = "") -> None:
@@ -52,7 +63,7 @@ def plot_run(csv_path: str | Path, png_path: str | Path, title: str = "") -> Non
         ax.grid(alpha=0.3)
         ax.legend()
     fig.suptitle(title)
-    fig.savefig(png_path, dpi=110)
+    _save_png(fig, png_path)
     plt.close(fig)
 
 
@@ -135,7 +146,7 @@ def plot_groups(rows: list[dict], png_path: str | Path) -> None:
     ax.set_ylabel("eval episode return")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    fig.savefig(png_path, dpi=110)
+    _save_png(fig, png_path)
     plt.close(fig)
 
 

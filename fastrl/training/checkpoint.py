@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
 from fastrl.training.config import identity_diff
+from fastrl.training.files import WriteError
 
 __all__ = [
     "CHECKPOINT_DIR",
@@ -126,17 +127,43 @@ class Checkpointer:
 
     def __init__(self, directory: str | Path, keep: int = 3):
         self.directory = Path(directory).absolute()
-        options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
+        # cleanup_tmp_directories: a save cut off by a kill leaves a partial ``N.orbax-checkpoint-tmp``
+        options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=True)
         self._manager = ocp.CheckpointManager(self.directory, options=options)
 
     def latest_step(self) -> int | None:
         return self._manager.latest_step()
 
     def save(self, step: int, state: Any, meta: dict) -> None:
-        """Saves and waits until the checkpoint is complete on disk."""
+        """Saves and waits until the checkpoint is complete on disk.
+
+        Raises:
+          WriteError: the save failed (a full disk, a read-only folder): the message names the
+            folder, the cause and the newest complete checkpoint, which is left as it was; the
+            failed save's partial folder is removed.
+        """
         args = ocp.args.Composite(state=ocp.args.StandardSave(_pack(state)), meta=ocp.args.JsonSave(meta))
-        self._manager.save(step, args=args, force=True)
-        self._manager.wait_until_finished()
+        absl = logging.getLogger("absl")
+        level = absl.level
+        absl.setLevel(logging.CRITICAL)  # orbax logs each failing writer thread's traceback
+        try:
+            self._manager.save(step, args=args, force=True)
+            self._manager.wait_until_finished()
+        except Exception as e:
+            for partial in self.directory.glob(f"{step}.orbax-checkpoint-tmp*"):
+                shutil.rmtree(partial, ignore_errors=True)
+            raise WriteError(
+                f"could not save checkpoint {self.directory / str(step)}: {_cause(e)}; {self.last_good()}"
+            ) from None
+        finally:
+            absl.setLevel(level)
+
+    def last_good(self) -> str:
+        """Names the newest complete checkpoint folder, for messages about a failed write."""
+        steps = sorted(s for s in (_step_of(p) for p in self.directory.iterdir()) if s is not None)
+        if not steps:
+            return "no earlier checkpoint of this run was saved"
+        return f"the last good checkpoint is {self.directory / str(steps[-1])}"
 
     def steps(self) -> list[int]:
         """The saved steps, newest first."""
@@ -150,7 +177,13 @@ class Checkpointer:
             raise UnreadableCheckpoint(
                 f"checkpoint {self.directory / str(step)} is unreadable: {_first_line(e)}"
             ) from None
-        return step, dict(out["meta"])
+        meta = out["meta"]
+        problem = _meta_problem(meta)
+        if problem:
+            raise UnreadableCheckpoint(
+                f"checkpoint {self.directory / str(step)} has damaged metadata: {problem}"
+            )
+        return step, dict(meta)
 
     def restore_newest(self, attempt: Callable[[int], T], step: int | None = None) -> T:
         """``attempt(step)`` for ``step``, or (``step=None``) for the newest checkpoint it succeeds
@@ -309,6 +342,41 @@ def _drop_loop_closed(text: str) -> str:
             continue
         out.append(line)
     return "".join(out)
+
+
+# What a checkpoint's ``meta`` item must hold to place a resumed run (the runner's ``_Progress``).
+_META_NUMBERS = ("chunk", "env_steps", "wall_s")
+
+
+def _meta_problem(meta: Any) -> str | None:
+    """Why a checkpoint's metadata cannot be used, or None: a JSON object with the run's config
+    and numeric ``chunk``, ``env_steps`` and ``wall_s``."""
+    if not isinstance(meta, dict):
+        return f"a JSON object was expected, not {type(meta).__name__}"
+    if not isinstance(meta.get("config"), dict):
+        return "no run config in it"
+    bad = [
+        k for k in _META_NUMBERS if isinstance(meta.get(k), bool) or not isinstance(meta.get(k), int | float)
+    ]
+    return f"no number for {', '.join(bad)}" if bad else None
+
+
+def _step_of(path: Path) -> int | None:
+    """The step of a complete checkpoint folder (orbax writes ``N.orbax-checkpoint-tmp...`` first,
+    then renames it ``N``), else None."""
+    return int(path.name) if path.name.isdigit() and path.is_dir() else None
+
+
+def _cause(e: Exception) -> str:
+    """Why a write failed, in one line: the OS's words where the error carries them."""
+    if isinstance(e, OSError) and e.strerror:
+        return f"{e.strerror} ({e.filename})" if e.filename else e.strerror
+    text = _first_line(e)
+    for marker in ("Failed to write", "Failed writing", "Error writing"):
+        if marker in text:
+            text = text[text.index(marker) :]
+            break
+    return text
 
 
 def _first_line(e: Exception) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -43,6 +44,8 @@ def _convert(value: Any, annotation: Any, key: str) -> Any:
         ann = ann[: -len("|None")]
     base = ann.split("[")[0] if isinstance(ann, str) else ann
     fail = ConfigError(f"{key}={value!r} should be of type {annotation}")
+    if isinstance(value, float) and not math.isfinite(value) and base in ("int", int, "float", float):
+        raise ConfigError(f"{key}={value!r} should be a finite number")
     if base in ("int", int):
         if isinstance(value, bool) or not isinstance(value, int | float) or int(value) != value:
             raise fail
@@ -235,7 +238,7 @@ class EnvConfig:
             raise ConfigError(f"env.options.{clash[0]}: set it as env.{clash[0]}, not among the options")
         try:
             return envs.make(self.name, **kwargs, **self.options)
-        except ValueError as e:
+        except (ValueError, FileNotFoundError) as e:  # an unknown option value, a missing asset file
             raise ConfigError(f"env: {e}") from None
         except TypeError as e:
             raise ConfigError(f"env.options of {self.name}: {e}") from None

@@ -22,8 +22,10 @@ is.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
+import io
 import json
 import math
 import os
@@ -46,9 +48,10 @@ from fastrl import agents, compile_cache, devices, reference, viewer
 from fastrl.agents.base import Learner
 from fastrl.devices import to_host
 from fastrl.report import plot_run
-from fastrl.training import policy, scale
+from fastrl.training import files, policy, scale
 from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError, quiet_library_logs
 from fastrl.training.config import RunConfig
+from fastrl.training.files import RunDirError
 
 try:
     import fcntl
@@ -99,6 +102,7 @@ def train(
     run_dir.mkdir(parents=True, exist_ok=True)
     quiet_library_logs()
     with RunDirLock(run_dir):
+        files.refuse_links(run_dir)  # a folder from elsewhere is untrusted: no writes through links
         ckpt = _open_checkpoints(cfg, run_dir, resume)
         try:
             return _train(cfg, run_dir, ckpt, resume, on_chunk, resume_step, record or {})
@@ -128,8 +132,9 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
     _announce_start(setup, program, run_dir)
     outs = _open_outputs(setup, run_dir, progress.chunk, setup.agents.env_steps(state))
     status, row = "done", {}
+    stop = _StopFlag()
     try:
-        with _StopFlag() as stop:
+        with stop:
             while not progress.done(setup):
                 n, t = sizer.next(progress, clock), time.perf_counter()
                 new_state, sums = program.run(state, np.int32(n))
@@ -147,18 +152,21 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
                 row = _write_rows(setup, rows, outs)
                 if on_chunk is not None:
                     on_chunk(progress.chunk, row)
-                stop.set = devices.any_process(stop.set)  # Ctrl-C in one process stops them all
+                stop.agree()  # a signal to one process stops them all
                 ending = _stop_reason(setup, progress, stop.set, clock)
-                _checkpoint(ckpt, setup, progress, state, ending is not None)
+                with stop.saving():
+                    _checkpoint(ckpt, setup, progress, state, ending is not None)
                 if ending:
                     status = ending
-                    _announce_end(setup, progress, ending, stop.set, run_dir)
+                    _announce_end(setup, progress, ending, stop.name, run_dir)
                     break
+    except (OSError, files.WriteError) as e:  # a full disk, a read-only folder
+        raise files.WriteError(_write_failure(e, ckpt, run_dir)) from None
     finally:
-        for out in outs:
-            out.plot()
-            out.close()
-    return _summary(setup, progress, status, state, row, program.compile_s, run_dir, stop.set)
+        _close_outputs(outs)
+    summary = _summary(setup, progress, status, state, row, program.compile_s, run_dir, stop.set)
+    summary["signal"] = stop.signum
+    return summary
 
 
 # ----------------------------------------------------------------------------- the run's parts
@@ -388,9 +396,10 @@ def _start(setup: _Setup, ckpt: Checkpointer, run_dir: Path, resume: bool, resum
 
 def _claim_folder(run_dir: Path, config: dict, record: dict[str, str]) -> None:
     """Writes the run's config and the command line's record: the run is valid and owns its folder."""
-    _write_text(run_dir / "config.json", json.dumps(config, indent=2))
+    files.write_text(run_dir / "config.json", json.dumps(config, indent=2))
     for name, text in record.items():
-        _write_text(run_dir / name, text)
+        (run_dir / name).parent.mkdir(parents=True, exist_ok=True)
+        files.write_text(run_dir / name, text)
 
 
 def _place(setup: _Setup, state):
@@ -645,7 +654,7 @@ def _open_outputs(setup: _Setup, run_dir: Path, chunk: int, env_steps: int) -> l
     for spec in setup.agents.specs:
         agent_dir = run_dir / "agents" / spec.tag
         agent_dir.mkdir(parents=True, exist_ok=True)
-        (agent_dir / "config.json").write_text(json.dumps(spec.config.to_dict(), indent=2))
+        files.write_text(agent_dir / "config.json", json.dumps(spec.config.to_dict(), indent=2))
         outs.append(_Outputs(agent_dir, spec.config, chunk, env_steps))
     return outs
 
@@ -704,7 +713,9 @@ def _stop_reason(setup: _Setup, progress: _Progress, interrupted: bool, clock: _
     return None
 
 
-def _announce_end(setup: _Setup, progress: _Progress, ending: str, interrupted: bool, run_dir: Path) -> None:
+def _announce_end(
+    setup: _Setup, progress: _Progress, ending: str, signal_name: str | None, run_dir: Path
+) -> None:
     train = setup.cfg.train
     if ending == "reached":
         who = "every agent's" if setup.agents.batched else "the"
@@ -712,8 +723,8 @@ def _announce_end(setup: _Setup, progress: _Progress, ending: str, interrupted: 
               f"chunk {progress.chunk} ({progress.wall:.0f}s of training); stopping", flush=True)  # fmt: skip
         return
     after = train.stop_after_chunks
-    if interrupted:
-        why = "Ctrl-C"
+    if signal_name is not None:
+        why = signal_name
     elif after is not None and progress.chunk - progress.start_chunk >= after:
         why = f"train.stop_after_chunks={after}"
     else:
@@ -748,30 +759,91 @@ def _summary(setup: _Setup, progress: _Progress, status: str, state, row: dict, 
 
 
 class _StopFlag:
-    """First SIGINT sets the flag (stop after this chunk); the second raises as usual."""
+    """Stops the run cleanly on Ctrl-C (SIGINT), SIGTERM (Slurm, ``docker stop``, ``kill``, a CI
+    cancel) and SIGHUP (a closed terminal): the first sets the flag, and the run stops after the
+    chunk in flight and saves a checkpoint. A second signal stops at once without saving, except
+    while a checkpoint is being written: that save is completed first (an interrupted save
+    would leave nothing but a partial folder). A first signal during a periodic save stops the
+    run after the next chunk."""
+
+    SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
     def __init__(self):
-        self.set = False
-        self._previous = None
+        self.signum: int | None = None
+        self._saving = False
+        self._previous: dict[int, Any] = {}
+
+    @property
+    def set(self) -> bool:
+        return self.signum is not None
+
+    @property
+    def name(self) -> str | None:
+        """How the stop was asked for, as the user would say it."""
+        if self.signum is None:
+            return None
+        return "Ctrl-C" if self.signum == signal.SIGINT else signal.Signals(self.signum).name
 
     def __enter__(self):
-        if (
-            signal.getsignal(signal.SIGINT) is not None
-            and threading.current_thread() is threading.main_thread()
-        ):
-            self._previous = signal.signal(signal.SIGINT, self._handle)
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        for name in self.SIGNALS:
+            num = getattr(signal, name, None)  # Windows has no SIGHUP
+            if num is not None and signal.getsignal(num) is not None:
+                self._previous[num] = signal.signal(num, self._handle)
         return self
 
     def _handle(self, signum, frame):
+        if self.set and self._saving:
+            print("\n[fastrl] a checkpoint is being saved: the run ends once it is complete",
+                  file=sys.stderr, flush=True)  # fmt: skip
+            return
         if self.set:
             raise KeyboardInterrupt
-        self.set = True
-        print("\n[fastrl] Ctrl-C: stopping after this chunk and saving a checkpoint (again to abort)",
+        self.signum = signum
+        print(f"\n[fastrl] {self.name}: stopping after this chunk and saving a checkpoint (again to abort)",
               file=sys.stderr, flush=True)  # fmt: skip
 
+    def agree(self) -> None:
+        """A stop asked of any process of a multi-host run stops them all (as SIGINT where this
+        process received none)."""
+        if devices.any_process(self.set) and not self.set:
+            self.signum = signal.SIGINT
+
+    @contextlib.contextmanager
+    def saving(self):
+        """Holds a second signal back while a checkpoint is written."""
+        self._saving = True
+        try:
+            yield
+        finally:
+            self._saving = False
+
     def __exit__(self, *exc):
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
+        for num, previous in self._previous.items():
+            signal.signal(num, previous)
+        self._previous = {}
+
+
+def _write_failure(e: BaseException, ckpt: Checkpointer, run_dir: Path) -> str:
+    """The one line a failed write ends the run with: what, why, what is safe, what to do."""
+    if isinstance(e, files.WriteError):
+        what = str(e)
+    else:
+        what = f"could not write {e.filename or run_dir}: {e.strerror or e}; {ckpt.last_good()}"
+    return f"{what}. Free space (or make the folder writable), then: python -m fastrl.train resume={run_dir}"
+
+
+def _close_outputs(outs: list[_Outputs]) -> None:
+    """Draws each agent's curve and closes its logs. A curve that cannot be written (the full
+    disk that ended the run) keeps the previous one, and says so."""
+    for out in outs:
+        try:
+            out.plot()
+            out.close()
+        except OSError as e:
+            print(f"[fastrl] warning: the outputs of {out.run_dir} were not updated: {e.strerror or e}",
+                  file=sys.stderr)  # fmt: skip
 
 
 def _reduce(sums: dict, n: int) -> dict[str, float]:
@@ -808,17 +880,20 @@ class _Outputs:
             self._truncate_csv(resumed_chunk)
 
     def _truncate_csv(self, chunk: int) -> None:
-        """Drops rows logged after the checkpoint being resumed, so the curve has no duplicates."""
-        with self.csv_path.open() as f:
-            rows = list(csv.DictReader(f))
-        if not rows:
+        """Drops rows logged after the checkpoint being resumed, so the curve has no duplicates.
+        Rows that cannot be read back (a crash or a full disk mid-append leaves a last row cut
+        short, without its line end) are set aside in ``metrics.csv.damaged-<time>``, with a note."""
+        header, rows, damaged = _read_csv(self.csv_path)
+        if damaged:
+            aside = self.csv_path.with_name(f"{self.csv_path.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}")
+            files.write_text(aside, "".join(damaged))
+            print(f"[fastrl] warning: {len(damaged)} damaged row(s) of {self.csv_path} (a write cut short) "
+                  f"set aside in {aside.name}; the run continues", file=sys.stderr)  # fmt: skip
+        if header is None:
             return
-        fields = list(rows[0])
-        keep = [r for r in rows if int(r["chunk"]) <= chunk]
-        with self.csv_path.open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=fields)
-            w.writeheader()
-            w.writerows(keep)
+        chunks = header.index("chunk")
+        keep = [r for r in rows if int(r[chunks]) <= chunk]
+        files.write_text(self.csv_path, _csv_text([header, *keep]))
 
     def log(self, row: dict[str, float]) -> None:
         step = int(row["env_steps"])
@@ -831,30 +906,19 @@ class _Outputs:
             self._append_csv(row)
 
     def _append_csv(self, row: dict) -> None:
-        """Appends ``row``; a column first seen now (the first evaluation's, an episode return)
-        extends the header, the earlier rows keeping it empty."""
-        fields = []
-        if self.csv_path.exists():
-            with self.csv_path.open() as f:
-                fields = next(csv.reader(f), [])
+        """Appends ``row`` whole or not at all; a column first seen now (the first evaluation's,
+        an episode return) extends the header, the earlier rows keeping it empty."""
+        header, rows, _ = _read_csv(self.csv_path) if self.csv_path.exists() else (None, [], [])
+        fields = header or []
         extra = [k for k in row if k != "agents" and k not in fields]
         if extra and fields:
-            with self.csv_path.open() as f:
-                old = list(csv.DictReader(f))
-            fields += extra
-            tmp = self.csv_path.with_name(self.csv_path.name + ".tmp")
-            with tmp.open("w", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=fields)
-                w.writeheader()
-                w.writerows(old)
-            os.replace(tmp, self.csv_path)
-        new = not fields
-        fields = fields or extra
-        with self.csv_path.open("a", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-            if new:
-                w.writeheader()
-            w.writerow({k: row.get(k, "") for k in fields})
+            files.write_text(
+                self.csv_path, _csv_text([fields + extra, *(r + [""] * len(extra) for r in rows)])
+            )
+        lines = [] if fields else [fields + extra]
+        fields = fields + extra
+        lines.append([row.get(k, "") for k in fields])
+        files.append_text(self.csv_path, _csv_text(lines))
 
     def plot(self) -> None:
         if not (self.cfg.logger.plot and self.cfg.logger.csv and self.csv_path.exists()):
@@ -866,6 +930,38 @@ class _Outputs:
     def close(self) -> None:
         if self.writer is not None:
             self.writer.close()
+
+
+def _read_csv(path: Path) -> tuple[list[str] | None, list[list[str]], list[str]]:
+    """A ``metrics.csv``'s header, its readable rows, and the raw lines of the damaged ones: a
+    last line without its line end (an append cut short), or a row of another width or without
+    a whole chunk number. A damaged header leaves no header and every line damaged."""
+    with path.open(newline="") as f:
+        lines = f.read().splitlines(keepends=True)
+    if lines and not lines[-1].endswith("\n"):
+        lines[-1] += "\n"
+        cut = [lines.pop()]
+    else:
+        cut = []
+    if not lines:
+        return None, [], cut
+    header = next(csv.reader([lines[0]]))
+    if "chunk" not in header:
+        return None, [], lines + cut
+    chunks, rows, damaged = header.index("chunk"), [], []
+    for line in lines[1:]:
+        row = next(csv.reader([line]), [])
+        if len(row) == len(header) and row[chunks].isdigit():
+            rows.append(row)
+        else:
+            damaged.append(line)
+    return header, rows, damaged + cut
+
+
+def _csv_text(rows: list[list[str]]) -> str:
+    buf = io.StringIO()
+    csv.writer(buf).writerows(rows)
+    return buf.getvalue()
 
 
 def _progress(row: dict, total_steps: int, elapsed: float, train_return: float) -> str:
@@ -880,10 +976,6 @@ def _progress(row: dict, total_steps: int, elapsed: float, train_return: float) 
         f"[{bar}] {100 * frac:5.1f}% {steps:>11,d} steps | {rate:>9,.0f} steps/s | "
         f"{ret} | {elapsed:7.0f}s elapsed, ETA {eta:6.0f}s"
     )
-
-
-class RunDirError(RuntimeError):
-    """The run folder cannot be used (another process is running in it); the message says why."""
 
 
 class RunDirLock:
@@ -903,7 +995,7 @@ class RunDirLock:
     def __enter__(self):
         if fcntl is None or jax.process_index() != 0:
             return self
-        f = self.path.open("a+")
+        f = files.open_lock(self.path)  # never through a link: ``.lock -> file`` would truncate it
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -925,15 +1017,6 @@ class RunDirLock:
         if self._file is not None:
             self._file.close()  # closing releases the flock
             self._file = None
-
-
-def _write_text(path: Path, text: str) -> None:
-    """Writes ``text`` to ``path`` through a temporary file and a rename, so a crash mid-write
-    never leaves a half-written file in place of a good one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _set_aside_after(ckpt: Checkpointer, run_dir: Path, step: int) -> None:

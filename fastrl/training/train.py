@@ -12,19 +12,24 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import shutil
+import signal
 import sys
 from pathlib import Path
 
 import hydra
 import jax
 from hydra.core.hydra_config import HydraConfig
+from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from fastrl import agents, compile_cache, envs, xla_flags
 from fastrl.training import runner
-from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError
+from fastrl.training.checkpoint import CHECKPOINT_DIR, CheckpointError
 from fastrl.training.config import ConfigError, RunConfig, identity_diff
+from fastrl.training.files import WriteError
 
 __all__ = [
     "CONF_DIR",
@@ -43,6 +48,8 @@ CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 # Command-line keys that say how to start, not what the run is: never part of a run's record.
 _LAUNCH_KEYS = ("resume", "resume_step", "run_dir", "distributed")
 OVERRIDES_FILE = ".hydra/overrides.yaml"
+# The exit status of a run ended by a failed write (a full disk, a read-only folder): EX_IOERR.
+EXIT_WRITE_FAILED = 74
 
 
 def find_resume_dir(resume, runs_root: Path, current: Path) -> Path | None:
@@ -95,11 +102,14 @@ def compose_container(overrides: list[str]) -> dict:
     from hydra.core.global_hydra import GlobalHydra
 
     overrides = [*overrides, "run_dir=/unused"]
-    if GlobalHydra.instance().is_initialized():  # inside the command-line app
-        cfg = compose("train", overrides=overrides)
-    else:
-        with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
+    try:
+        if GlobalHydra.instance().is_initialized():  # inside the command-line app
             cfg = compose("train", overrides=overrides)
+        else:
+            with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
+                cfg = compose("train", overrides=overrides)
+    except (HydraException, OmegaConfBaseException) as e:  # a recorded line replayed on resume
+        raise ConfigError(f"the command line {overrides[:-1]} cannot be composed: {e}") from None
     container = OmegaConf.to_container(cfg, resolve=True)
     for key in _LAUNCH_KEYS:
         container.pop(key, None)
@@ -119,7 +129,7 @@ def resumed_config(run_dir: Path, overrides: list[str]) -> tuple[dict, list[str]
     saved = _saved_config(run_dir)
     record = run_dir / OVERRIDES_FILE
     if record.is_file():
-        line = merge_overrides(list(OmegaConf.load(record) or []), overrides)
+        line = merge_overrides(_saved_command_line(record, saved), overrides)
         container = compose_container(line)
     else:
         line = merge_overrides([], overrides)
@@ -144,19 +154,61 @@ def resumed_config(run_dir: Path, overrides: list[str]) -> tuple[dict, list[str]
 
 
 def _saved_config(run_dir: Path) -> dict:
-    """The run's config: its ``config.json`` (written only once a run is valid), read without
-    starting JAX so that the CPU device count can still be chosen; else the checkpoint's own."""
+    """The run's config: its ``config.json`` (written only once a run is valid); when that is
+    damaged, the copy in the newest checkpoint that holds a readable one. Both are read as plain
+    JSON files, without starting JAX, so that the CPU device count can still be chosen."""
     path = run_dir / "config.json"
-    if path.is_file():
-        try:
-            return json.loads(path.read_text())
-        except json.JSONDecodeError:
-            pass  # damaged: the checkpoint's copy below is authoritative anyway
-    ckpt = Checkpointer(run_dir / CHECKPOINT_DIR)
+    config = _json_object(path)
+    if config is not None:
+        return config
+    steps = [p for p in (run_dir / CHECKPOINT_DIR).iterdir() if p.name.isdigit()]
+    for step in sorted(steps, key=lambda p: -int(p.name)):
+        meta = _json_object(step / "meta" / "metadata")
+        if meta is not None and isinstance(meta.get("config"), dict):
+            if path.exists():
+                print(f"[fastrl] warning: {path} is damaged; using the copy in {step}", file=sys.stderr)
+            return meta["config"]
+    raise ConfigError(f"{run_dir} holds no readable config: neither config.json nor a checkpoint's")
+
+
+def _json_object(path: Path) -> dict | None:
+    """The JSON object in ``path``; None when the file is missing, unreadable, or not an object."""
     try:
-        return ckpt.restore_newest(ckpt.read_meta)[1]["config"]
-    finally:
-        ckpt.close()
+        value = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return value if isinstance(value, dict) else None
+
+
+# What a recorded command line may hold: ``key=value`` with a dotted config key (``+`` / ``~``
+# prefixes as Hydra allows), and a value of printable characters.
+_OVERRIDE = re.compile(r"[+~]{0,2}[A-Za-z_]\w*(\.\w+)*(@[\w.]+)?(=[^\x00-\x1f\x7f]*)?", re.ASCII)
+
+
+def _saved_command_line(record: Path, saved: dict) -> list[str]:
+    """The command line a run folder recorded, checked as untrusted input: a YAML list of
+    ``key=value`` strings with config keys, no launch or Hydra keys, and an ``init_from`` that
+    the run's own config holds (a resume never starts from other weights). Raises
+    ``ConfigError`` naming the record and the offending entry."""
+    try:
+        line = OmegaConf.to_container(OmegaConf.load(record)) or []
+    except Exception as e:  # YAML's and OmegaConf's parse errors have many types
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise ConfigError(f"{record} cannot be read (invalid YAML: {first}); restore or remove it") from None
+    if not isinstance(line, list):
+        raise ConfigError(f"{record} should be a list of key=value overrides, not {type(line).__name__}")
+    for entry in line:
+        if not isinstance(entry, str) or not _OVERRIDE.fullmatch(entry) or len(entry) > 4096:
+            raise ConfigError(f"{record} holds {entry!r}, which is not a command line's key=value override")
+        key = _override_key(entry)
+        if key in _LAUNCH_KEYS or key.split(".")[0] == "hydra":
+            raise ConfigError(f"{record} holds {entry!r}: a run's recorded command line never sets {key}")
+        if key == "init_from" and _yaml_value(entry.partition("=")[2]) != saved.get("init_from"):
+            raise ConfigError(
+                f"{record} holds {entry!r}, but the run's config says init_from="
+                f"{saved.get('init_from')!r}: the record does not belong to this run"
+            )
+    return line
 
 
 def _yaml_value(text: str):
@@ -290,13 +342,21 @@ def main(cfg: DictConfig) -> float | None:
     except (ConfigError, CheckpointError, runner.RunDirError) as e:
         print(f"[fastrl] error: {e}", file=sys.stderr)
         sys.exit(2)
+    except WriteError as e:
+        print(f"[fastrl] error: {e}", file=sys.stderr)
+        sys.exit(EXIT_WRITE_FAILED)
+    except KeyboardInterrupt:
+        print(
+            "[fastrl] stopped at once by a second signal; the last checkpoint saved is kept", file=sys.stderr
+        )
+        sys.exit(130)
     finally:
         logging.shutdown()  # Hydra's log file is closed before its folder may be removed
         _discard_unused(output_dir, Path(summary["run_dir"]) if summary else None)
     if summary["status"] == "diverged":
         sys.exit(1)
-    if summary["interrupted"]:
-        sys.exit(130)  # the shell's code for Ctrl-C; the checkpoint is saved and the hint printed
+    if summary["interrupted"]:  # the checkpoint is saved and the hint printed
+        sys.exit(128 + (summary["signal"] or signal.SIGINT))  # the shell's code: 130 Ctrl-C, 143 SIGTERM
     # The return value lets Hydra sweepers (Optuna) maximise the final evaluation return.
     return summary["last"].get("eval/episode_return")
 
