@@ -41,6 +41,9 @@ T = TypeVar("T")
 CHECKPOINT_DIR = "checkpoints"
 # Orbax logs every save step at INFO, JAX its backend probing: the command line quiets them.
 _QUIET_LOGGERS = ("absl", "jax._src.xla_bridge")
+# A failed checkpoint write fails many of orbax's asyncio futures at once, each logged with the
+# whole tensorstore spec; the save's own error says what happened, in one line.
+_SILENT_LOGGERS = ("asyncio",)
 
 
 def quiet_library_logs() -> None:
@@ -48,6 +51,8 @@ def quiet_library_logs() -> None:
     Called when a run or the evaluation command starts, never at import."""
     for name in _QUIET_LOGGERS:
         logging.getLogger(name).setLevel(logging.WARNING)
+    for name in _SILENT_LOGGERS:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def _pack(tree: Any) -> dict[str, Any]:
@@ -130,6 +135,7 @@ class Checkpointer:
         # cleanup_tmp_directories: a save cut off by a kill leaves a partial ``N.orbax-checkpoint-tmp``
         options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=True)
         self._manager = ocp.CheckpointManager(self.directory, options=options)
+        self._failed = False
 
     def latest_step(self) -> int | None:
         return self._manager.latest_step()
@@ -147,9 +153,13 @@ class Checkpointer:
         level = absl.level
         absl.setLevel(logging.CRITICAL)  # orbax logs each failing writer thread's traceback
         try:
-            self._manager.save(step, args=args, force=True)
-            self._manager.wait_until_finished()
+            with _without_closed_loop_noise():  # a failed save's pending writes print one each
+                self._manager.save(step, args=args, force=True)
+                self._manager.wait_until_finished()
         except Exception as e:
+            self._failed = True
+            with contextlib.suppress(Exception), _without_closed_loop_noise():  # writers still in flight
+                self._manager.wait_until_finished()
             for partial in self.directory.glob(f"{step}.orbax-checkpoint-tmp*"):
                 shutil.rmtree(partial, ignore_errors=True)
             raise WriteError(
@@ -285,7 +295,13 @@ class Checkpointer:
         return aside
 
     def close(self) -> None:
-        self._manager.close()
+        """Ends orbax's background work; after a failed save (already reported) its error is not
+        raised a second time."""
+        try:
+            self._manager.close()
+        except Exception:
+            if not self._failed:
+                raise
 
 
 @contextlib.contextmanager

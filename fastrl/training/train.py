@@ -334,9 +334,11 @@ def _discard_unused(output_dir: Path, used: Path | None) -> None:
 def main(cfg: DictConfig) -> float | None:
     hc = HydraConfig.get()
     output_dir = Path(hc.runtime.output_dir)
+    logging.raiseExceptions = False  # a full disk under train.log must not print a traceback per line
     summary = None
     if not compile_cache.is_enabled():  # a cache the user set (JAX_COMPILATION_CACHE_DIR) is kept
         compile_cache.enable()  # FASTRL_COMPILE_CACHE= (empty) turns it off
+    failed = None
     try:
         summary = run(cfg, split_cpu=True, overrides=list(hc.overrides.task))
     except (ConfigError, CheckpointError, runner.RunDirError) as e:
@@ -344,7 +346,7 @@ def main(cfg: DictConfig) -> float | None:
         sys.exit(2)
     except WriteError as e:
         print(f"[fastrl] error: {e}", file=sys.stderr)
-        sys.exit(EXIT_WRITE_FAILED)
+        failed = EXIT_WRITE_FAILED
     except KeyboardInterrupt:
         print(
             "[fastrl] stopped at once by a second signal; the last checkpoint saved is kept", file=sys.stderr
@@ -353,6 +355,12 @@ def main(cfg: DictConfig) -> float | None:
     finally:
         logging.shutdown()  # Hydra's log file is closed before its folder may be removed
         _discard_unused(output_dir, Path(summary["run_dir"]) if summary else None)
+    if failed is not None:
+        # After a failed write orbax's writer threads can wait minutes on their own timeouts, and
+        # a normal exit joins them: end the process now (the error is said, the files closed).
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(failed)
     if summary["status"] == "diverged":
         sys.exit(1)
     if summary["interrupted"]:  # the checkpoint is saved and the hint printed
