@@ -130,10 +130,11 @@ class UnreadableCheckpoint(CheckpointError):
 class Checkpointer:
     """Saves and restores ``(state, meta)`` under ``directory`` (one sub-folder per chunk)."""
 
-    def __init__(self, directory: str | Path, keep: int = 3):
+    def __init__(self, directory: str | Path, keep: int = 3, tidy: bool = False):
+        """``tidy``: remove the partial ``N.orbax-checkpoint-tmp`` folders of saves cut off by a
+        kill (only the run that owns the folder does; loading and evaluating change nothing)."""
         self.directory = Path(directory).absolute()
-        # cleanup_tmp_directories: a save cut off by a kill leaves a partial ``N.orbax-checkpoint-tmp``
-        options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=True)
+        options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=tidy)
         self._manager = ocp.CheckpointManager(self.directory, options=options)
         self._failed = False
 
@@ -360,13 +361,13 @@ def _drop_loop_closed(text: str) -> str:
     return "".join(out)
 
 
-# What a checkpoint's ``meta`` item must hold to place a resumed run (the runner's ``_Progress``).
-_META_NUMBERS = ("chunk", "env_steps", "wall_s")
+# What every checkpoint's ``meta`` item holds besides the run's config.
+_META_NUMBERS = ("env_steps",)
 
 
 def _meta_problem(meta: Any) -> str | None:
     """Why a checkpoint's metadata cannot be used, or None: a JSON object with the run's config
-    and numeric ``chunk``, ``env_steps`` and ``wall_s``."""
+    and its number of env steps."""
     if not isinstance(meta, dict):
         return f"a JSON object was expected, not {type(meta).__name__}"
     if not isinstance(meta.get("config"), dict):

@@ -362,7 +362,7 @@ class _ChunkSizer:
 
 def _open_checkpoints(cfg: RunConfig, run_dir: Path, resume: bool) -> Checkpointer:
     """The run's checkpointer; a new run refuses a folder that holds another run's checkpoints."""
-    ckpt = Checkpointer(run_dir / CHECKPOINT_DIR, keep=cfg.checkpoint.keep)
+    ckpt = Checkpointer(run_dir / CHECKPOINT_DIR, keep=cfg.checkpoint.keep, tidy=True)
     if not resume and ckpt.latest_step() is not None:
         ckpt.close()
         raise CheckpointError(
