@@ -22,7 +22,7 @@ from fastrl.checkpoint import Checkpointer
 from fastrl.config import ConfigError
 from fastrl.runner import RunDirError
 from fastrl.train import resumed_config, run
-from fastrl.training import files, runner
+from fastrl.training import runner
 
 from .test_front_door import QUICK, QUICK_RESUME, _weights_of, compose_cfg, typed
 from .test_reliability import QUICK_CLI, _env
@@ -69,6 +69,8 @@ def test_a_link_in_a_run_folder_is_refused_and_its_target_untouched(saved_run, t
 
 
 def test_the_writers_never_follow_a_link_planted_after_the_check(tmp_path):
+    from fastrl.training import files
+
     victim = tmp_path / "victim"
     victim.write_bytes(b"keep\n")
     for name in ("a.json.tmp", "b.csv", "c.lock"):
