@@ -4,6 +4,8 @@
 - ``scale``: agent batches in one program (seeds, ``vmap_sweep``) and the state's device layout.
 - ``checkpoint``: the whole training state with orbax, plus the resolved config.
 - ``runner``: the host loop over compiled chunks (``train``).
+- ``files``: what a run writes into its folder, never through a link, whole or not at all.
+- ``curve``: ``metrics.csv`` read back and the learning curve drawn.
 - ``policy``: trained policies from run folders (``load_policy``, ``load_run``).
 - ``train``: the command line, ``python -m fastrl.train`` (Hydra).
 

@@ -47,10 +47,10 @@ from jax.sharding import Mesh
 from fastrl import agents, compile_cache, devices, reference, viewer
 from fastrl.agents.base import Learner
 from fastrl.devices import to_host
-from fastrl.report import plot_run
 from fastrl.training import files, policy, scale
 from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError, quiet_library_logs
 from fastrl.training.config import RunConfig
+from fastrl.training.curve import plot_run
 from fastrl.training.files import RunDirError
 
 try:

@@ -26,7 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from fastrl import agents, compile_cache, envs, xla_flags
-from fastrl.training import runner
+from fastrl.training import files, runner
 from fastrl.training.checkpoint import CHECKPOINT_DIR, CheckpointError
 from fastrl.training.config import ConfigError, RunConfig, identity_diff
 from fastrl.training.files import WriteError
@@ -297,6 +297,8 @@ def run(cfg: DictConfig, split_cpu: bool = False, overrides: list[str] | None = 
     if target is None and resume_step is not None:
         raise ConfigError("resume_step=N picks the checkpoint to continue from: use it with resume=PATH")
     line = merge_overrides([], overrides or [])
+    if target is not None:
+        files.refuse_links(target)  # before anything in it is read, let alone replayed
     if target is not None and overrides is not None:
         container, line = resumed_config(target, overrides)
     rc = RunConfig.from_dict(container)
