@@ -137,6 +137,7 @@ class Checkpointer:
         options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=tidy)
         self._manager = ocp.CheckpointManager(self.directory, options=options)
         self._failed = False
+        self._held = contextlib.ExitStack()  # a failed save's stderr filter, undone at close
 
     def latest_step(self) -> int | None:
         return self._manager.latest_step()
@@ -158,8 +159,11 @@ class Checkpointer:
                 self._manager.save(step, args=args, force=True)
                 self._manager.wait_until_finished()
         except Exception as e:
+            # The failed save's writers still in flight fail one by one until orbax is closed,
+            # each printing an "Event loop is closed" traceback: held back until ``close``.
             self._failed = True
-            with contextlib.suppress(Exception), _without_closed_loop_noise():  # writers still in flight
+            self._held.enter_context(_without_closed_loop_noise())
+            with contextlib.suppress(Exception):
                 self._manager.wait_until_finished()
             for partial in self.directory.glob(f"{step}.orbax-checkpoint-tmp*"):
                 shutil.rmtree(partial, ignore_errors=True)
@@ -298,11 +302,12 @@ class Checkpointer:
     def close(self) -> None:
         """Ends orbax's background work; after a failed save (already reported) its error is not
         raised a second time."""
-        try:
-            self._manager.close()
-        except Exception:
-            if not self._failed:
-                raise
+        with self._held:
+            try:
+                self._manager.close()
+            except Exception:
+                if not self._failed:
+                    raise
 
 
 @contextlib.contextmanager
@@ -336,29 +341,28 @@ def _without_closed_loop_noise():
                 sys.__stderr__.flush()
 
 
-_LOOP_CLOSED = "RuntimeError: Event loop is closed"
+_LOOP_CLOSED = "Event loop is closed"
 _LOOP_CLOSED_FRAMES = (
     "asyncio/base_events.py",
     "self._check_closed()",
     "raise RuntimeError('Event loop is closed')",
 )
+_HEADER = "Traceback (most recent call last):"
 
 
 def _drop_loop_closed(text: str) -> str:
     """``text`` without the "Event loop is closed" tracebacks. Several threads print them at
-    once, so their lines interleave: the noise is removed line by line (its frames, its final
-    line, and one "Traceback" header per final line), and every other line is kept."""
+    once, so their pieces interleave even within a line ("RuntimeErrorTraceback ..."): per
+    such error one "Traceback" header, its "RuntimeError" name and message are cut out wherever
+    they are, and its frame lines and the blank lines left behind. Every other line is kept."""
+    n = text.count(_LOOP_CLOSED)
+    if not n:
+        return text
     lines = text.splitlines(keepends=True)
-    headers = sum(line.rstrip() == _LOOP_CLOSED for line in lines)
-    out = []
-    for line in lines:
-        if line.rstrip() == _LOOP_CLOSED or any(f in line for f in _LOOP_CLOSED_FRAMES):
-            continue
-        if headers and line.startswith("Traceback (most recent call last):"):
-            headers -= 1
-            continue
-        out.append(line)
-    return "".join(out)
+    text = "".join(x for x in lines if not any(f in x for f in _LOOP_CLOSED_FRAMES))
+    text = text.replace(f"RuntimeError: {_LOOP_CLOSED}", "").replace(f": {_LOOP_CLOSED}", "")
+    text = text.replace(_LOOP_CLOSED, "").replace("RuntimeError", "", n).replace(_HEADER, "", n)
+    return "".join(x for x in text.splitlines(keepends=True) if x.strip())
 
 
 # What every checkpoint's ``meta`` item holds besides the run's config.

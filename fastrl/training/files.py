@@ -95,9 +95,11 @@ def write_bytes(path: str | Path, data: bytes) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)  # rename replaces a link at ``path`` itself, never its target
-    except BaseException:
+    except BaseException as e:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        if isinstance(e, OSError) and e.filename is None:  # os.write names no file
+            raise OSError(e.errno, e.strerror, str(path)) from None
         raise
 
 
@@ -118,10 +120,10 @@ def append_text(path: str | Path, text: str) -> None:
         try:
             while data:
                 data = data[os.write(fd, data) :]
-        except OSError:
+        except OSError as e:
             with contextlib.suppress(OSError):
                 os.ftruncate(fd, size)  # shrinking a file needs no space
-            raise
+            raise OSError(e.errno, e.strerror, str(path)) from None
     finally:
         os.close(fd)
 

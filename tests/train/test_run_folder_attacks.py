@@ -266,3 +266,16 @@ def test_a_failed_write_ends_the_run_at_once_with_one_line_and_loses_nothing(tmp
     done = subprocess.run(cmd, cwd=tmp_path, env=_env(FASTRL_CPU_DEVICES="1"), capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert "resumed" in done.stdout and "damaged" not in done.stderr
+
+
+def test_interleaved_closed_loop_tracebacks_are_dropped_and_nothing_else():
+    from fastrl.training.checkpoint import _drop_loop_closed
+
+    frame = '  File "/x/asyncio/base_events.py", line 806, in call_soon_threadsafe\n    self._check_closed()\n'
+    noise = (
+        f"Traceback (most recent call last):\n{frame}RuntimeErrorTraceback (most recent call last):\n"
+        f": Event loop is closed\n\n{frame}RuntimeError: Event loop is closed\n"
+    )
+    kept = "[fastrl] warning: something the user must see\nValueError: a real error\n"
+    assert _drop_loop_closed(noise + kept) == kept
+    assert _drop_loop_closed(kept + "\n") == kept + "\n"  # no noise: the text as it was
