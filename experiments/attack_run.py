@@ -235,6 +235,73 @@ def read_only(lab: Lab) -> dict:
         subprocess.run(["umount", "-l", str(mnt)])
 
 
+# ----------------------------------------------------------------------------- models users bring
+
+_CHAIN = """
+import numpy as np
+from fastrl import physics
+body = ""
+for i in reversed(range(200)):
+    body = (f'<body pos="0 0 {-0.1 if i else 0}"><joint name="j{i}" axis="0 1 0" damping="0.01"/>'
+            f'<geom type="capsule" fromto="0 0 0 0 0 -0.1" size="0.01"/>{body}</body>')
+flag = "" if CONTACTS else '<option><flag contact="disable"/></option>'
+model = physics.load_mjcf(f'<mujoco>{flag}<worldbody><body pos="0 0 25">{body}</body></worldbody></mujoco>')
+d = physics.make_data(model, qpos=np.full(model.nq, 0.05))
+for _ in range(5):
+    d = physics.step(model, d)
+assert np.isfinite(np.asarray(d.qvel)).all() and not bool(d.diverged)
+print("200-deep chain, float32: 5 steps finite")
+"""
+
+_SPHERES = """
+import time
+from fastrl import physics
+geoms = "".join(f'<geom type="sphere" size="0.1" pos="{i % 100} {i // 100} 0.1"/>' for i in range(10000))
+xml = f'<mujoco><worldbody>{geoms}<body pos="0 0 2"><freejoint/><geom size=".2"/></body></worldbody></mujoco>'
+t = time.perf_counter()
+physics.load_mjcf(xml)
+seconds = time.perf_counter() - t
+assert seconds < 5, seconds
+print(f"10,000 static spheres loaded in {seconds:.1f} s")
+"""
+
+_ACTIVATION = """
+import numpy as np
+from fastrl import physics
+xml = (
+    '<mujoco><option noslip_iterations="10"/><worldbody><geom type="plane" size="2 2 .1"/>'
+    '<body pos="0 0 .1" euler="0 10 0"><freejoint/><geom type="box" size=".1 .1 .1"/></body>'
+    '<body pos="0 0 1"><joint name="h" axis="0 1 0"/><geom type="capsule" fromto="0 0 0 .3 0 0" size=".03"/>'
+    '</body></worldbody><actuator><position joint="h" kp="10" timeconst=".05"/>'
+    '<intvelocity joint="h" kp="5" actrange="-1 1"/><general joint="h" dyntype="filter" dynprm=".1"/>'
+    '</actuator></mujoco>'
+)
+model = physics.load_mjcf(xml)
+d = physics.make_data(model)
+d = d.replace(ctrl=np.full(model.nu, 0.5, np.float32))
+for _ in range(20):
+    d = physics.step(model, d)
+assert np.isfinite(np.asarray(d.qpos)).all() and np.abs(np.asarray(d.act)).max() > 0
+print("filterexact, integrator and filter actuators with noslip: 20 steps finite, act moving")
+"""
+
+
+def model_attack(code: str, refused: str | None = None) -> Callable[[Lab], dict]:
+    """A model a user brings, loaded and stepped in a child process: it runs, or (``refused``)
+    is refused by name."""
+
+    def attack(lab: Lab) -> dict:
+        out = subprocess.run([sys.executable, "-c", code], cwd=lab.root, env=lab.env, capture_output=True,
+                             text=True, timeout=900)  # fmt: skip
+        if refused is not None:
+            ok = out.returncode == 1 and refused in out.stderr
+            said = next((x for x in out.stderr.splitlines() if f"{refused}:" in x), out.stderr[-200:])
+            return {"rc": out.returncode, "expected_rc": 1, "ok": ok, "said": said[:200]}
+        return _verdict(out.returncode, 0, out.stderr, True, out.stdout.strip()[-160:])
+
+    return attack
+
+
 def _truncate(data: bytes) -> bytes:
     return data[:100]
 
@@ -271,6 +338,12 @@ ATTACKS: dict[str, Callable[[Lab], dict]] = {
     "file size limit 0 mid-run": file_size_limit,
     "full disk (tmpfs) mid-run": full_disk,
     "checkpoints read-only mid-run": read_only,
+    "model: 200-deep hinge chain, float32": model_attack("CONTACTS = False\n" + _CHAIN),
+    "model: 200-deep chain with contacts, float32": model_attack(
+        "CONTACTS = True\n" + _CHAIN, refused="UnsupportedFeatureError"
+    ),
+    "model: 10,000 static spheres": model_attack(_SPHERES),
+    "model: activation dynamics and noslip": model_attack(_ACTIVATION),
 }
 
 

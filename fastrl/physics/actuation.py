@@ -80,7 +80,7 @@ def actuator_input(m: Model, d: Data) -> jax.Array:
     early = m.actuator_actearly[dyn].astype(bool)
     if early.any():
         act = jnp.where(early, next_activation(m, d.act, d.act_dot)[adr], act)
-    return ctrl.at[dyn].set(act)
+    return jnp.asarray(ctrl).at[dyn].set(act)  # ctrl may be a host array outside jit
 
 
 def moment_actuators(m: Model) -> np.ndarray:
