@@ -430,6 +430,13 @@ def test_first_minute_quick(tmp_path):
     assert 0 < cold["first_line_s"] < cold["wall_s"] and cached["train_steps_per_s"] > 0
 
 
+def test_attack_run_quick(tmp_path):
+    """The link and replayed-command-line attacks each end in a named error, their victims intact."""
+    rows = _run_quick("attack_run", tmp_path, "attack_run_quick.json")["results"]
+    assert len(rows) == 9 and all(r["ok"] for r in rows.values()), rows
+    assert all(r["rc"] == 2 and r["nothing_lost"] for r in rows.values())
+
+
 def test_robot_training_reads_runs_and_interpolates_playgrounds_curve(tmp_path):
     """``experiments.robot_training`` on a run folder as ``fastrl.train`` writes it: every
     evaluation with its steps, wall time and eval metrics, Playground's return interpolated at
