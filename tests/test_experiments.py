@@ -430,6 +430,12 @@ def test_first_minute_quick(tmp_path):
     assert 0 < cold["first_line_s"] < cold["wall_s"] and cached["train_steps_per_s"] > 0
 
 
+def test_compile_time_quick(tmp_path):
+    """The compile-time experiment on its generated tree: every stage and the whole step timed."""
+    (row,) = _run_quick("compile_time", tmp_path, "compile_time_quick.json")["rows"]
+    assert row["step"]["compile_s"] > 0 and row["step"]["hlo"] > 0 and row["stages"]
+
+
 def test_attack_run_quick(tmp_path):
     """The link and replayed-command-line attacks each end in a named error, their victims intact."""
     rows = _run_quick("attack_run", tmp_path, "attack_run_quick.json")["results"]

@@ -424,18 +424,24 @@ def convex_pair(type1: int, type2: int, multi: bool = True):
         dists, poss, normals, kept = [dist], [pos], [normal], [jnp.array(True)]
         if extra:
             tolerance = _DISTINCT * rbound
+            p1, m1, p2, m2 = [], [], [], []  # each pose turned alone: batched, they round differently
             for axis in _tangents(normal):
                 for angle in (-_PERTURBATION, _PERTURBATION):
                     rot = _rotation(axis, angle)
-                    p1, m1 = pos + rot @ (pos1 - pos), rot @ mat1
-                    p2, m2 = pos + rot.T @ (pos2 - pos), rot.T @ mat2
-                    d, x, n = contact(p1, m1, size1, p2, m2, size2, verts1, verts2)
-                    apart = jnp.linalg.norm(jnp.stack(poss) - x, axis=-1) > tolerance
-                    found = (dist < margin) & (d < margin) & jnp.all(apart | ~jnp.stack(kept))
-                    dists.append(jnp.where(found, dist, _FAR))
-                    poss.append(x)
-                    normals.append(n)
-                    kept.append(found)
+                    p1.append(pos + rot @ (pos1 - pos))
+                    m1.append(rot @ mat1)
+                    p2.append(pos + rot.T @ (pos2 - pos))
+                    m2.append(rot.T @ mat2)
+            turned = lambda p1, m1, p2, m2: contact(p1, m1, size1, p2, m2, size2, verts1, verts2)  # noqa: E731
+            # the four searches are independent: one vmapped GJK/EPA, not four copies to compile
+            found_turned = jax.vmap(turned)(*map(jnp.stack, (p1, m1, p2, m2)))
+            for d, x, n in zip(*found_turned, strict=True):
+                apart = jnp.linalg.norm(jnp.stack(poss) - x, axis=-1) > tolerance
+                found = (dist < margin) & (d < margin) & jnp.all(apart | ~jnp.stack(kept))
+                dists.append(jnp.where(found, dist, _FAR))
+                poss.append(x)
+                normals.append(n)
+                kept.append(found)
         return jnp.stack(dists), jnp.stack(poss), jnp.stack(normals), jnp.zeros((len(dists), 3), pos1.dtype)
 
     return collide

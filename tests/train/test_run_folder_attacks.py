@@ -271,7 +271,7 @@ def test_a_failed_write_ends_the_run_at_once_with_one_line_and_loses_nothing(tmp
 def test_interleaved_closed_loop_tracebacks_are_dropped_and_nothing_else():
     from fastrl.training.checkpoint import _drop_loop_closed
 
-    frame = '  File "/x/asyncio/base_events.py", line 806, in call_soon_threadsafe\n    self._check_closed()\n'
+    frame = '  File "/x/asyncio/base_events.py", line 806, in call_soon\n    self._check_closed()\n'
     noise = (
         f"Traceback (most recent call last):\n{frame}RuntimeErrorTraceback (most recent call last):\n"
         f": Event loop is closed\n\n{frame}RuntimeError: Event loop is closed\n"
