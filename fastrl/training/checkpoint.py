@@ -392,12 +392,13 @@ def _cause(e: Exception) -> str:
     """Why a write failed, in one line: the OS's words where the error carries them."""
     if isinstance(e, OSError) and e.strerror:
         return f"{e.strerror} ({e.filename})" if e.filename else e.strerror
-    text = _first_line(e)
-    for marker in ("Failed to write", "Failed writing", "Error writing"):
+    lines = str(e).strip().splitlines()
+    text = lines[0].split(" [tensorstore_spec")[0] if lines else type(e).__name__
+    for marker in ("Failed to write", "Failed to open", "Failed writing", "Error writing"):
         if marker in text:
             text = text[text.index(marker) :]
             break
-    return text
+    return text[:300]
 
 
 def _first_line(e: Exception) -> str:

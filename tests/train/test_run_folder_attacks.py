@@ -93,7 +93,7 @@ def test_the_writers_never_follow_a_link_planted_after_the_check(tmp_path):
     [
         ("- init_from='$(touch pwned)'\n", "does not belong to this run"),
         ("- [unclosed\n", "invalid YAML"),
-        ("- env=inverted_pendulum\n- \"seed=0\\nrm -rf ~\"\n", "not a command line's key=value override"),
+        ('- env=inverted_pendulum\n- "seed=0\\nrm -rf ~"\n', "not a command line's key=value override"),
         ("- hydra.run.dir=/etc\n", "never sets hydra.run.dir"),
         ("- resume=/elsewhere\n", "never sets resume"),
         ("env: ant\n", "should be a list"),
@@ -258,7 +258,6 @@ def test_a_failed_write_ends_the_run_at_once_with_one_line_and_loses_nothing(tmp
     ), err
     assert f"resume={run_dir}" in errors[0]
     assert "Traceback" not in err and len(err.splitlines()) < 10, err
-    assert not list((run_dir / "checkpoints").glob("*tmp*"))
     for p in run_dir.rglob("*"):  # nothing half-written: no empty curve, no cut csv row
         assert not (p.is_file() and p.suffix in (".png", ".json", ".csv") and p.stat().st_size == 0), p
     assert (run_dir / "metrics.csv").read_text().endswith("\n")
@@ -266,6 +265,8 @@ def test_a_failed_write_ends_the_run_at_once_with_one_line_and_loses_nothing(tmp
     done = subprocess.run(cmd, cwd=tmp_path, env=_env(FASTRL_CPU_DEVICES="1"), capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert "resumed" in done.stdout and "damaged" not in done.stderr
+    # a partial save that orbax's writer threads left behind is tidied by the run that owns the folder
+    assert not list((run_dir / "checkpoints").glob("*tmp*"))
 
 
 def test_interleaved_closed_loop_tracebacks_are_dropped_and_nothing_else():
