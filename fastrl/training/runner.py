@@ -908,14 +908,16 @@ class _Outputs:
     def _append_csv(self, row: dict) -> None:
         """Appends ``row`` whole or not at all; a column first seen now (the first evaluation's,
         an episode return) extends the header, the earlier rows keeping it empty."""
-        header, rows, _ = _read_csv(self.csv_path) if self.csv_path.exists() else (None, [], [])
-        fields = header or []
+        fields = []
+        if self.csv_path.exists():  # the header only: the whole file is read when it grows a column
+            with self.csv_path.open(newline="") as f:
+                fields = next(csv.reader(f), [])
         extra = [k for k in row if k != "agents" and k not in fields]
         if extra and fields:
-            files.write_text(
-                self.csv_path, _csv_text([fields + extra, *(r + [""] * len(extra) for r in rows)])
-            )
-        lines = [] if fields else [fields + extra]
+            _, rows, _ = _read_csv(self.csv_path)
+            table = [fields + extra, *(r + [""] * len(extra) for r in rows)]
+            files.write_text(self.csv_path, _csv_text(table))
+        lines = [] if fields else [extra]
         fields = fields + extra
         lines.append([row.get(k, "") for k in fields])
         files.append_text(self.csv_path, _csv_text(lines))
