@@ -7,6 +7,7 @@ same number of candidate contacts. A scene with no pairs traces no collision cod
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -76,14 +77,44 @@ GJK_PAIRS |= FACE_CLIPPED
 SUPPORTED = {**PRIMITIVES, **SHAPED}
 
 
+@dataclasses.dataclass(frozen=True)
+class Convex:
+    """The key of a group of GJK/EPA pairs that may mix type pairs: the geom types on each side.
+    Every type pair it holds has the same ``collision_gjk.program`` (EPA's iterations, candidate
+    contacts), and each pair's own types are data (``codes``), so the group compiles GJK/EPA once
+    however many type pairs it holds."""
+
+    types1: tuple[int, ...]
+    types2: tuple[int, ...]
+    program: tuple[int, int]
+
+
 MESH_GROUPS = 3  # at most this many hull-size groups per type pair (each compiles GJK/EPA anew)
+
+
+def _plain_gjk(key) -> bool:
+    """Whether a type pair (or group key) goes through ``collision_gjk.convex_pair``."""
+    return isinstance(key, Convex) or (key in GJK_PAIRS and key not in FACE_CLIPPED)
+
+
+def is_gjk(key) -> bool:
+    """Whether a group's pairs go through GJK (``_cull``): plain or face-clipped."""
+    return isinstance(key, Convex) or key in GJK_PAIRS
+
+
+def key_types(key) -> tuple:
+    """A group key's geom types on each side (tuples for a ``Convex`` group, else ints)."""
+    return (key.types1, key.types2) if isinstance(key, Convex) else key[:2]
 
 
 def _hull_buckets(m: Model, idx: np.ndarray) -> np.ndarray:
     """Each pair's hull-size group: the larger of its two meshes' vertex counts rounded up to a
-    power of two; then, while a type pair has more than ``MESH_GROUPS`` groups, the group whose
-    padding up to the next size costs least (pairs x added vertices) joins that next group."""
+    power of two (1 with no mesh); then, while a type pair has more than ``MESH_GROUPS`` groups,
+    the group whose padding up to the next size costs least (pairs x added vertices) joins that
+    next group."""
     g = np.stack([m.pair_geom1[idx], m.pair_geom2[idx]])
+    if not m.mesh_vertnum.size:  # no meshes in the model
+        return np.ones(idx.size, np.int64)
     num = np.where(m.geom_meshid[g] >= 0, m.mesh_vertnum[np.maximum(m.geom_meshid[g], 0)], 0).max(0)
     bucket = (2 ** np.ceil(np.log2(np.maximum(num, 1)))).astype(np.int64)
     sizes = list(np.unique(bucket))
@@ -95,12 +126,49 @@ def _hull_buckets(m: Model, idx: np.ndarray) -> np.ndarray:
     return bucket
 
 
-def pair_groups(m: Model) -> list[tuple[tuple[int, int], np.ndarray]]:
-    """Pair indices grouped by geom-type pair (and, with meshes, by hull size; with MJX's
-    ``max_geom_pairs``, by condim), in a fixed order."""
+def _convex_groups(m: Model, key: tuple[int, int], seen: set) -> list[tuple[Convex, np.ndarray]]:
+    """The GJK/EPA groups of ``key``'s program (``collision_gjk.program``): each type pair with
+    that program split by hull size as if alone (``_hull_buckets``), then the type pairs' groups
+    of one hull size joined, each keyed by the types it holds: fewer programs to compile, no
+    more padding. Empty when the program's groups were made already (``seen``). Under MJX's
+    ``max_geom_pairs``, which caps each type pair and condim, type pairs are not mixed."""
+    program = key if capped(m, key) else gjk.program(*key)
+    if program in seen:
+        return []
+    seen.add(program)
     t1, t2 = m.geom_type[m.pair_geom1], m.geom_type[m.pair_geom2]
+    plain = ~m.pair_faceclip.astype(bool)
+    idx, bucket = [], []
+    for k in SUPPORTED:
+        if not _plain_gjk(k) or (k if capped(m, k) else gjk.program(*k)) != program:
+            continue
+        i = np.flatnonzero((t1 == k[0]) & (t2 == k[1]) & plain)
+        if i.size:
+            idx.append(i)
+            by_condim = capped(m, k) and GeomType.MESH not in k
+            bucket.append(m.pair_condim[i] if by_condim else _hull_buckets(m, i))
+    if not idx:
+        return []
+    order = np.argsort(np.concatenate(idx), kind="stable")  # pair order within each group
+    idx, bucket = np.concatenate(idx)[order], np.concatenate(bucket)[order]
     groups = []
+    for b in np.unique(bucket):
+        sub = idx[bucket == b]
+        types = tuple(tuple(int(t) for t in np.unique(side[sub])) for side in (t1, t2))
+        groups.append((Convex(*types, gjk.program(int(t1[sub[0]]), int(t2[sub[0]]))), sub))
+    return groups
+
+
+def pair_groups(m: Model) -> list[tuple[tuple[int, int] | Convex, np.ndarray]]:
+    """Pair indices grouped by geom-type pair (and, with meshes, by hull size; with MJX's
+    ``max_geom_pairs``, by condim), in a fixed order. Plain GJK/EPA pairs of several type pairs
+    share groups (``Convex``), placed where their first type pair stands."""
+    t1, t2 = m.geom_type[m.pair_geom1], m.geom_type[m.pair_geom2]
+    groups, seen = [], set()
     for key in SUPPORTED:
+        if _plain_gjk(key):
+            groups.extend(_convex_groups(m, key, seen))
+            continue
         clipped = key in FACE_CLIPPED
         if key[:2] + (FACES,) in FACE_CLIPPED or clipped:  # split by Model.pair_faceclip
             idx = np.flatnonzero((t1 == key[0]) & (t2 == key[1]) & (m.pair_faceclip == clipped))
@@ -157,6 +225,8 @@ def _spread(n: int, chosen: jax.Array, out: tuple) -> tuple:
 
 def capped(m: Model, key: tuple) -> bool:
     """Whether MJX's ``max_geom_pairs`` applies to a type pair (planes and height fields never)."""
+    if isinstance(key, Convex):  # no planes or height fields go through GJK/EPA
+        return m.max_geom_pairs > 0
     return m.max_geom_pairs > 0 and not {GeomType.PLANE, GeomType.HFIELD} & set(key[:2])
 
 
@@ -164,7 +234,7 @@ def compacted(m: Model, key: tuple, idx: np.ndarray) -> bool:
     """Whether a group emits contacts only for the pairs it collides: MJX's ``max_geom_pairs``
     on a primitive or box-box group with more pairs than that. Its candidates' pairs then change
     from step to step (``Data.contact_pair``); a GJK/EPA group keeps its whole layout (``_cull``)."""
-    return capped(m, key) and key not in GJK_PAIRS and idx.size > m.max_geom_pairs
+    return capped(m, key) and not is_gjk(key) and idx.size > m.max_geom_pairs
 
 
 def _broadphase(m: Model, d: Data, idx: np.ndarray, fn, args: tuple, axes: tuple):
@@ -200,7 +270,8 @@ def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes:
         overlap, chosen, args = _keep(k1, overlap, args, axes)
     margin = args[-2]  # the shaped GJK arguments end with the margin and the smaller rbound
     verts = [a[0] if isinstance(a, tuple) else a for a in args[6:8]]  # face-clipped: hull tuples
-    sep = jax.vmap(gjk.separation(*key[:2]), (0,) * 8)(*args[:6], *verts)
+    codes = args[8:9] if isinstance(key, Convex) else ()  # each pair's own types
+    sep = jax.vmap(gjk.separation(*key_types(key)))(*args[:6], *verts, *codes)
     near = (overlap >= 0) & (sep < margin)
     if k2 < k1:
         near, closest, args = _keep(k2, jnp.where(near, -sep, -jnp.inf), args, axes)
@@ -221,8 +292,11 @@ def _window(m: Model, idx: np.ndarray) -> tuple[int, int]:
 
 def candidates_per_pair(m: Model, key: tuple[int, int], idx: np.ndarray) -> int:
     """How many candidate contacts each pair of a type-pair group emits (static)."""
-    count = SUPPORTED[key][1]
-    if key in GJK_PAIRS and not m.multiccd:  # <flag multiccd="disable"/>: the first contact only
+    if isinstance(key, Convex):
+        count = key.program[1]
+    else:
+        count = SUPPORTED[key][1]
+    if is_gjk(key) and not m.multiccd:  # <flag multiccd="disable"/>: the first contact only
         count = 1
     if count is None:  # a height field: two prisms per cell of the window
         rows, cols = _window(m, idx)
@@ -272,6 +346,18 @@ def _mesh_verts(m: Model, g: np.ndarray) -> jax.Array:
     return m.mesh_vert[m.mesh_vertadr[mesh][:, None] + np.where(real, k[None, :], 0)]
 
 
+def _side_verts(m: Model, g: np.ndarray) -> jax.Array:
+    """One side of a GJK/EPA group: each geom's hull vertices where it is a mesh (``_mesh_verts``,
+    zeros for the others), or a single zero vertex each when none is."""
+    mesh = m.geom_type[g] == GeomType.MESH
+    if not mesh.any():
+        return jnp.zeros((g.size, 1, 3))
+    verts = jnp.asarray(_mesh_verts(m, g[mesh]))
+    if mesh.all():
+        return verts
+    return jnp.zeros((g.size,) + verts.shape[1:], verts.dtype).at[np.flatnonzero(mesh)].set(verts)
+
+
 def _mesh_args(m: Model, g: np.ndarray) -> tuple[jax.Array, ...]:
     """Each geom's mesh, padded to the group's largest (with copies of vertex 0 and -1 ids):
     vertices (n, V, 3), each vertex's polygons (n, V, M), each polygon's vertices (n, P, K) and
@@ -312,13 +398,11 @@ def _shape_args(m: Model, key: tuple[int, int], idx: np.ndarray) -> tuple[tuple,
         rbound = jnp.minimum(m.geom_rbound[g1], m.geom_rbound[g2])
         tables = (jnp.asarray(m.mesh_polymap), jnp.asarray(m.mesh_polyvert), m.mesh_polynormal)
         return (*hulls, margin, rbound), (0, 0, 0, 0), {"tables": tables}
-    if key[0] != GeomType.HFIELD:  # GJK/EPA: each side's mesh vertices (if a mesh)
-        verts = [
-            _mesh_verts(m, g) if t == GeomType.MESH else jnp.zeros((g.size, 1, 3))
-            for g, t in ((g1, key[0]), (g2, key[1]))
-        ]
+    if isinstance(key, Convex):  # GJK/EPA: each side's mesh vertices (if a mesh), types
+        verts = [_side_verts(m, g) for g in (g1, g2)]
+        codes = jnp.asarray(np.stack([m.geom_type[g1], m.geom_type[g2]], axis=-1), jnp.int32)
         rbound = jnp.minimum(m.geom_rbound[g1], m.geom_rbound[g2])
-        return (*verts, margin, rbound), (0, 0, 0, 0), {}
+        return (*verts, codes, margin, rbound), (0,) * 5, {}
     hf = m.geom_hfieldid[g1]
     if key[1] in (GeomType.SPHERE, GeomType.BOX):
         shape, shape_axes = (), ()
@@ -354,17 +438,16 @@ def collision(m: Model, d: Data) -> Data:
     ``contact_pair``."""
     dists, poss, normals, tangents, pairs = [], [], [], [], []
     for key, idx in pair_groups(m):
-        fn = SUPPORTED[key][0]
+        convex = isinstance(key, Convex)
+        fn = gjk.convex_pair(key.types1, key.types2, m.multiccd, key.program) if convex else SUPPORTED[key][0]
         g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
         poses = (d.geom_xpos[g1], d.geom_xmat[g1], m.geom_size[g1],
                  d.geom_xpos[g2], d.geom_xmat[g2], m.geom_size[g2])  # fmt: skip
-        extra, axes, static = _shape_args(m, key, idx) if key in SHAPED else ((), (), {})
+        extra, axes, static = _shape_args(m, key, idx) if key in SHAPED or convex else ((), (), {})
         fn = functools.partial(fn, **static) if static else fn
-        if key in GJK_PAIRS and not m.multiccd:  # <flag multiccd="disable"/>: one contact a pair
-            fn = gjk.convex_pair(*key[:2], multi=False)
         count = candidates_per_pair(m, key, idx)
         pair = jnp.asarray(np.repeat(idx, count), jnp.int32)
-        if key in GJK_PAIRS:  # bounding spheres and GJK first
+        if is_gjk(key):  # bounding spheres and GJK first
             dist, pos, normal, tangent = _cull(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
         elif compacted(m, key, idx):
             out, chosen = _broadphase(m, d, idx, fn, (*poses, *extra), (0,) * 6 + axes)

@@ -33,21 +33,58 @@ _FACE_POINTS = np.array([list(c) + [c[0]] * (4 - len(c)) for c in _COMBOS])
 _FACE_COUNT = np.array([len(c) for c in _COMBOS])
 
 
-def support(gtype: int, pos, mat, size, verts, direction):
+def support(gtype, pos, mat, size, verts, direction, code=None):
     """The point of geom ``gtype`` (world pose ``pos``, ``mat``) farthest along ``direction``;
-    spheres and capsules by their core (radius left out). ``verts``: a mesh's vertices (local)."""
-    return support_vertex(gtype, pos, mat, size, verts, direction)[0]
+    spheres and capsules by their core (radius left out). ``verts``: a mesh's vertices (local).
+    ``gtype`` may be a tuple of types, with ``code`` saying which (``support_vertex``)."""
+    return support_vertex(gtype, pos, mat, size, verts, direction, code)[0]
 
 
-def support_vertex(gtype: int, pos, mat, size, verts, direction):
+def _one_type(gtype, code):
+    """``gtype`` as one static type where it is one (an int or a 1-tuple); else ``None``, and
+    ``code`` must say which of the tuple each pair's geom is."""
+    if not isinstance(gtype, tuple):
+        return gtype
+    if len(gtype) == 1:
+        return gtype[0]
+    if code is None:
+        raise ValueError(f"geom types {gtype} need a per-pair type code")
+    return None
+
+
+def _pick(types, code, values):
+    """Of ``values`` (one per geom type in ``types``), the one for type ``code``: exact values,
+    no arithmetic between them."""
+    out = values[-1]
+    for t, v in zip(types[:-1][::-1], values[:-1][::-1], strict=True):
+        out = jax.tree.map(lambda a, b: jnp.where(code == t, a, b), v, out)  # noqa: B023
+    return out
+
+
+def support_vertex(gtype, pos, mat, size, verts, direction, code=None):
     """``support`` and the vertex it is: a mesh's vertex id, a box's corner as MuJoCo numbers
-    them (bit 1, 2, 4 set where the corner lies on the +x, +y, +z side), 0 for other geoms."""
+    them (bit 1, 2, 4 set where the corner lies on the +x, +y, +z side), 0 for other geoms.
+
+    ``gtype`` is one geom type, or a tuple of the types a group of pairs holds on this side with
+    ``code`` (traced) the geom's own: every type's support is found and the geom's is kept, so
+    pairs of several type pairs share one compiled GJK/EPA."""
+    one = _one_type(gtype, code)
     local = mat.T @ direction
+    if one is None:
+        point, index = _pick(gtype, code, [_local_support(t, local, size, verts) for t in gtype])
+    else:
+        point, index = _local_support(one, local, size, verts)
+    return pos + mat @ point, index
+
+
+def _local_support(gtype: int, local, size, verts):
+    """A geom's support point along ``local`` (a direction in its frame), in its frame, and
+    its vertex id (``support_vertex``)."""
     index = jnp.zeros((), jnp.int32)
     if gtype == GeomType.SPHERE:
-        point = jnp.zeros(3, pos.dtype)
+        point = jnp.zeros(3, local.dtype)
     elif gtype == GeomType.CAPSULE:
-        point = jnp.array([0.0, 0.0, 1.0], pos.dtype) * jnp.where(local[2] >= 0, size[1], -size[1])
+        point = jnp.array([0.0, 0.0, 1.0], local.dtype) * jnp.where(local[2] >= 0, size[1], -size[1])
     elif gtype == GeomType.BOX:
         point = jnp.where(local >= 0, size, -size)
         index = jnp.sum(jnp.where(local >= 0, jnp.array([1, 2, 4], jnp.int32), 0)).astype(jnp.int32)
@@ -64,12 +101,16 @@ def support_vertex(gtype: int, pos, mat, size, verts, direction):
         point = verts[index]
     else:
         raise ValueError(f"no support function for geom type {gtype}")
-    return pos + mat @ point, index
+    return point, index
 
 
-def core_radius(gtype: int, size):
-    """The radius GJK leaves out of a sphere or capsule (0 for other geoms)."""
-    return size[0] if gtype in (GeomType.SPHERE, GeomType.CAPSULE) else jnp.zeros((), size.dtype)
+def core_radius(gtype, size, code=None):
+    """The radius GJK leaves out of a sphere or capsule (0 for other geoms); ``gtype`` and
+    ``code`` as in ``support_vertex``."""
+    one = _one_type(gtype, code)
+    if one is None:
+        return _pick(gtype, code, [core_radius(t, size) for t in gtype])
+    return size[0] if one in (GeomType.SPHERE, GeomType.CAPSULE) else jnp.zeros((), size.dtype)
 
 
 def _solve3(g, r):
@@ -342,6 +383,28 @@ def contacts_per_pair(type1: int, type2: int) -> int:
     return MULTI_CONTACTS if type1 in _FLAT and type2 in _FLAT else 1
 
 
+def _types(gtype) -> tuple[int, ...]:
+    return gtype if isinstance(gtype, tuple) else (gtype,)
+
+
+def program(type1: int, type2: int) -> tuple[int, int]:
+    """What a pair's compiled GJK/EPA depends on beyond its geoms' types: EPA's iterations and
+    the candidate contacts. Pairs of several type pairs with the same ``program`` can share one
+    (``support_vertex`` with a type code)."""
+    curved = {type1, type2} & set(_CURVED)
+    return (EPA_ITERATIONS_CURVED if curved else EPA_ITERATIONS), contacts_per_pair(type1, type2)
+
+
+def _program(types1, types2, shared) -> tuple[int, int]:
+    """The ``program`` of a pair of single types, or ``shared``: the one the type pairs of a
+    mixed group (tuples of types, ``support_vertex``) have in common."""
+    if shared is not None:
+        return shared
+    if len(_types(types1)) * len(_types(types2)) != 1:
+        raise ValueError(f"geom types {types1} x {types2}: a mixed group needs its shared program")
+    return program(_types(types1)[0], _types(types2)[0])
+
+
 def _rotation(axis, angle):
     """Rotation matrix about unit ``axis`` by ``angle`` (Rodrigues)."""
     k = jnp.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]], axis.dtype)
@@ -357,26 +420,29 @@ def _tangents(normal):
     return t1, jnp.cross(normal, t1)
 
 
-def single_contact(type1: int, type2: int):
-    """``contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2) -> (dist, pos, normal)``:
-    the one contact of two convex geoms by GJK on their cores and, where the cores overlap, EPA;
-    the normal from the first to the second."""
-    epa_iterations = EPA_ITERATIONS_CURVED if {type1, type2} & set(_CURVED) else EPA_ITERATIONS
+def single_contact(type1, type2, shared=None):
+    """``contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, codes=None) -> (dist, pos,
+    normal)``: the one contact of two convex geoms by GJK on their cores and, where the cores
+    overlap, EPA; the normal from the first to the second. A type may be a tuple of types
+    (``support_vertex``); ``codes`` (2,) then gives the pair's own, and ``shared`` the
+    ``program`` the group's type pairs share."""
+    epa_iterations = _program(type1, type2, shared)[0]
 
     @stops_when_done
     def make(loop):
         return lambda *args: contact(*args, loop=loop)
 
-    def contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, loop):
-        support1 = lambda d: support_vertex(type1, pos1, mat1, size1, verts1, d)  # noqa: E731
-        support2 = lambda d: support_vertex(type2, pos2, mat2, size2, verts2, d)  # noqa: E731
+    def contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, codes=None, *, loop):
+        code1, code2 = (None, None) if codes is None else (codes[0], codes[1])
+        support1 = lambda d: support_vertex(type1, pos1, mat1, size1, verts1, d, code1)  # noqa: E731
+        support2 = lambda d: support_vertex(type2, pos2, mat2, size2, verts2, d, code2)  # noqa: E731
         dist, w1, w2, simplex, _ = gjk(support1, support2, pos1 - pos2, GJK_ITERATIONS, loop)
         apart = dist > 0
         depth, n_deep, d1, d2, _ = epa(support1, support2, simplex, epa_iterations, apart, loop)
         gap = w2 - w1
         n_apart = gap / jnp.where(apart, nonzero_norm(gap, 0.0)[0], 1.0)
         normal = jnp.where(apart, n_apart, n_deep)
-        r1, r2 = core_radius(type1, size1), core_radius(type2, size2)
+        r1, r2 = core_radius(type1, size1, code1), core_radius(type2, size2, code2)
         x1 = jnp.where(apart, w1, d1) + r1 * normal
         x2 = jnp.where(apart, w2, d2) - r2 * normal
         dist = jnp.where(apart, dist, -depth) - r1 - r2
@@ -385,8 +451,9 @@ def single_contact(type1: int, type2: int):
     return make
 
 
-def separation(type1: int, type2: int):
-    """``separation(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2) -> dist``: GJK alone:
+def separation(type1, type2):
+    """``separation(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, codes=None) -> dist``
+    (types and ``codes`` as in ``single_contact``): GJK alone:
     the distance ``convex_pair``'s first contact reports when the cores are apart, minus infinity
     when they overlap. A pair whose separation is at least its margin gets no contact, so the
     driver runs EPA and the multi-contact search only when some pair is closer."""
@@ -395,19 +462,22 @@ def separation(type1: int, type2: int):
     def make(loop):
         return lambda *args: dist(*args, loop=loop)
 
-    def dist(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, loop):
-        support1 = lambda d: support_vertex(type1, pos1, mat1, size1, verts1, d)  # noqa: E731
-        support2 = lambda d: support_vertex(type2, pos2, mat2, size2, verts2, d)  # noqa: E731
+    def dist(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, codes=None, *, loop):
+        code1, code2 = (None, None) if codes is None else (codes[0], codes[1])
+        support1 = lambda d: support_vertex(type1, pos1, mat1, size1, verts1, d, code1)  # noqa: E731
+        support2 = lambda d: support_vertex(type2, pos2, mat2, size2, verts2, d, code2)  # noqa: E731
         gap = gjk(support1, support2, pos1 - pos2, GJK_ITERATIONS, loop)[0]
-        return jnp.where(gap > 0, gap - core_radius(type1, size1) - core_radius(type2, size2), -jnp.inf)
+        radii = core_radius(type1, size1, code1) + core_radius(type2, size2, code2)
+        return jnp.where(gap > 0, gap - radii, -jnp.inf)
 
     return make
 
 
-def convex_pair(type1: int, type2: int, multi: bool = True):
+def convex_pair(type1, type2, multi: bool = True, shared=None):
     """The collision function of two convex geom types (see module doc): GJK on their cores and,
     where the cores overlap, EPA. Signature as the driver's shaped functions: poses and sizes,
-    then each geom's mesh vertices (ignored unless a mesh) and the margin.
+    then each geom's mesh vertices (ignored unless a mesh), the pair's type codes (used where a
+    type is a tuple: ``single_contact``), the margin and the smaller bounding radius.
 
     Where both shapes can rest on a face or an edge (boxes, meshes, cylinders, capsules), one
     contact cannot hold a face up, so the pair also searches for more as MuJoCo's multi-contact
@@ -416,11 +486,11 @@ def convex_pair(type1: int, type2: int, multi: bool = True):
     before it, joins with the first's distance. MuJoCo searches this way for pairs with a
     margin and for capsules and cylinders; a mesh against a mesh or box with no margin clips the
     touching faces instead (``collision_manifold``)."""
-    extra = contacts_per_pair(type1, type2) - 1 if multi else 0  # multi=False: multiccd disabled
-    contact = single_contact(type1, type2)
+    extra = _program(type1, type2, shared)[1] - 1 if multi else 0  # multi=False: multiccd disabled
+    contact = single_contact(type1, type2, shared)
 
-    def collide(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, margin, rbound):
-        dist, pos, normal = contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2)
+    def collide(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, codes, margin, rbound):
+        dist, pos, normal = contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, codes)
         dists, poss, normals, kept = [dist], [pos], [normal], [jnp.array(True)]
         if extra:
             tolerance = _DISTINCT * rbound
@@ -432,7 +502,7 @@ def convex_pair(type1: int, type2: int, multi: bool = True):
                     m1.append(rot @ mat1)
                     p2.append(pos + rot.T @ (pos2 - pos))
                     m2.append(rot.T @ mat2)
-            turned = lambda p1, m1, p2, m2: contact(p1, m1, size1, p2, m2, size2, verts1, verts2)  # noqa: E731
+            turned = lambda p1, m1, p2, m2: contact(p1, m1, size1, p2, m2, size2, verts1, verts2, codes)  # noqa: E731
             # the four searches are independent: one vmapped GJK/EPA, not four copies to compile
             found_turned = jax.vmap(turned)(*map(jnp.stack, (p1, m1, p2, m2)))
             for d, x, n in zip(*found_turned, strict=True):

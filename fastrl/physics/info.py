@@ -22,11 +22,12 @@ def _collision(m: Model) -> str:
     """Each geom-type pair's method and candidate contacts per pair."""
     parts: dict[str, list[int]] = {}
     for key, idx in collision_driver.pair_groups(m):
-        name = "-".join(GeomType(t).name.lower() for t in key[:2])
+        types = collision_driver.key_types(key)
+        name = "-".join("/".join(GeomType(t).name.lower() for t in np.atleast_1d(side)) for side in types)
         each = collision_driver.candidates_per_pair(m, key, idx)
         if key in collision_driver.FACE_CLIPPED:
             how = f"GJK/EPA and face clipping, {each} each"
-        elif key in collision_driver.GJK_PAIRS:
+        elif collision_driver.is_gjk(key):
             how = f"GJK/EPA, {each} each"
         elif GeomType.HFIELD in key:
             rows, cols = (int(w) for w in m.pair_window[idx].max(axis=0))
@@ -36,7 +37,7 @@ def _collision(m: Model) -> str:
         entry = parts.setdefault(f"{name} ({how}", [0, 0, 0])
         entry[0] += idx.size
         cap = m.max_geom_pairs if collision_driver.capped(m, key) else idx.size
-        if key in collision_driver.GJK_PAIRS:
+        if collision_driver.is_gjk(key):
             gjk, epa = collision_driver.gjk_slots(idx.size)
             entry[1] += min(gjk, cap)
             entry[2] += min(epa, gjk, cap)

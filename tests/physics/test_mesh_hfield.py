@@ -7,6 +7,8 @@ and spheres rolling over rough terrain, against ``mj_step``.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -16,7 +18,8 @@ import pytest
 from fastrl import physics
 from fastrl.physics import collision_convex as convex
 from fastrl.physics import collision_gjk as gjk
-from fastrl.physics.collision_driver import contact_layout, gjk_slots
+from fastrl.physics.collision_driver import Convex, contact_layout, gjk_slots, pair_groups
+from fastrl.physics.collision_primitive import _FAR
 from fastrl.physics.types import GeomType
 
 _RNG = np.random.default_rng(3)
@@ -278,6 +281,60 @@ def _clustered_poses(mj: mujoco.MjModel, n: int) -> np.ndarray:
     for b in range(mj.njnt):
         qpos[:, 7 * b : 7 * b + 2] = rng.uniform(-0.06, 0.06, (n, 2))
     return qpos
+
+
+def _hull(m, g: int) -> jax.Array:
+    """Geom ``g``'s hull vertices (a single zero vertex for a primitive)."""
+    if m.geom_type[g] != GeomType.MESH:
+        return jnp.zeros((1, 3))
+    adr, num = m.mesh_vertadr[m.geom_meshid[g]], m.mesh_vertnum[m.geom_meshid[g]]
+    return m.mesh_vert[adr : adr + num]
+
+
+def test_type_pairs_of_one_gjk_program_share_a_group(x64):
+    """Plain GJK/EPA pairs of different type pairs that share EPA's iteration count, their
+    candidate count and a hull size form one group (one compiled GJK/EPA, each pair's types as
+    data): here the cylinder's pairs with a cylinder and a box, and the ellipsoid's with a box
+    and a cylinder. Every contact of such a group is what its own type pair's function gives
+    alone (float64): the depth to 1e-10, the position to 1e-5 and the normal to 1e-4. They differ as
+    compiled programs do, where EPA on a curved surface stops as rounding says it has converged;
+    MuJoCo's own contacts are 3e-2 from either there (``test_gjk_epa_contacts_match_mujoco``)."""
+    mj = _compile(_gjk_xml(multiccd=True))
+    m = physics.model_from_mujoco(mj)
+    mixed = [idx for k, idx in pair_groups(m) if isinstance(k, Convex) and len(k.types1) * len(k.types2) > 1]
+    names = [
+        {(mj.geom(int(m.pair_geom1[i])).name, mj.geom(int(m.pair_geom2[i])).name) for i in idx}
+        for idx in mixed
+    ]
+    assert sorted(map(sorted, names)) == [
+        [("cyl", "box"), ("cyl", "cyl2")],
+        [("ell", "box"), ("ell", "cyl2")],
+    ]
+    qpos = _clustered_poses(mj, 12)
+    d = jax.jit(jax.vmap(lambda q: physics.forward(m, physics.make_data(m).replace(qpos=q))))(
+        jnp.asarray(qpos)
+    )
+    layout = contact_layout(m)
+    compared = 0
+    for p in np.concatenate(mixed):
+        g1, g2 = int(m.pair_geom1[p]), int(m.pair_geom2[p])
+        alone = gjk.convex_pair(int(m.geom_type[g1]), int(m.geom_type[g2]))
+        alone = jax.jit(jax.vmap(alone, (0, 0, None, 0, 0, None, None, None, None, None, None)))
+        rbound = min(m.geom_rbound[g1], m.geom_rbound[g2])
+        pose1 = (d.geom_xpos[:, g1], d.geom_xmat[:, g1], m.geom_size[g1])
+        pose2 = (d.geom_xpos[:, g2], d.geom_xmat[:, g2], m.geom_size[g2])
+        dist, pos, normal, _ = alone(
+            *pose1, *pose2, _hull(m, g1), _hull(m, g2), None, m.pair_margin[p], rbound
+        )
+        ours = np.asarray(d.contact_dist[:, layout == p])
+        found = ours < _FAR  # the group's cull keeps the pairs GJK finds within the margin
+        assert found[np.asarray(dist[:, 0]) < m.pair_margin[p] - 1e-9, 0].all()
+        close = functools.partial(np.testing.assert_allclose, rtol=0)
+        close(ours[found], np.asarray(dist)[found], atol=1e-10)
+        close(np.asarray(d.contact_pos[:, layout == p])[found], np.asarray(pos)[found], atol=1e-5)
+        close(np.asarray(d.contact_frame[:, layout == p, 0])[found], np.asarray(normal)[found], atol=1e-4)
+        compared += found.sum()
+    assert compared >= 20
 
 
 def test_gjk_epa_contacts_match_mujoco(x64):
