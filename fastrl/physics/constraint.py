@@ -28,7 +28,7 @@ import numpy as np
 
 from fastrl.physics import equality, tree
 from fastrl.physics.collision_driver import candidate_pairs, contact_layout
-from fastrl.physics.jacobian import point_jacobian, point_jacobian_masked, rotation_jacobian  # noqa: F401
+from fastrl.physics.jacobian import point_jacobian_masked, rotation_jacobian
 from fastrl.physics.math import matmul, matvec
 from fastrl.physics.types import Data, JointType, Model
 

@@ -32,12 +32,6 @@ def rotation_jacobian(d: Data, mask: jax.Array) -> jax.Array:
     return jnp.swapaxes(d.cdof[None, :, :3] * mask[:, :, None], 1, 2)
 
 
-def point_jacobian(m: Model, d: Data, bodies: np.ndarray, points: jax.Array) -> jax.Array:
-    """Translational Jacobians (n, 3, nv) of world points rigidly attached to ``bodies`` (n,)."""
-    mask = dof_mask(m, bodies, points.dtype)
-    return point_jacobian_masked(d, mask, d.subtree_com[m.body_rootid[bodies]], points)
-
-
 def point_and_rotation(
     m: Model, d: Data, bodies: np.ndarray, points: jax.Array
 ) -> tuple[jax.Array, jax.Array]:

@@ -94,17 +94,6 @@ def quat_integrate(q: jax.Array, omega: jax.Array, dt: jax.Array) -> jax.Array:
     return quat_normalize(quat_mul(q, rotvec_to_quat(omega * dt)))
 
 
-def quat_to_rotvec(q: jax.Array) -> jax.Array:
-    """Rotation vector of a unit quaternion, taking the short way round (mju_quat2Vel, dt=1)."""
-    w, u = q[..., 0], q[..., 1:]
-    sin_half = jnp.linalg.norm(u, axis=-1)
-    angle = 2.0 * jnp.arctan2(sin_half, w)
-    angle = jnp.where(angle > jnp.pi, angle - 2.0 * jnp.pi, angle)
-    small = sin_half < 1e-14
-    scale = jnp.where(small, 2.0, angle / jnp.where(small, 1.0, sin_half))
-    return u * scale[..., None]
-
-
 def cross_motion(v: jax.Array, u: jax.Array) -> jax.Array:
     """Spatial motion cross product ``v x u`` of 6-vectors (angular, linear)."""
     w, vl = v[..., :3], v[..., 3:]
@@ -142,11 +131,6 @@ def mul_inert_vec(inert: jax.Array, v: jax.Array) -> jax.Array:
 def matvec(a: jax.Array, x: jax.Array) -> jax.Array:
     """``a @ x`` for a (n, k) matrix and a (k,) vector."""
     return sum(a[..., :, k] * x[..., k, None] for k in range(a.shape[-1]))
-
-
-def vecmat(x: jax.Array, a: jax.Array) -> jax.Array:
-    """``x @ a`` for a (n,) vector and a (n, k) matrix."""
-    return sum(x[..., i, None] * a[..., i, :] for i in range(a.shape[-2]))
 
 
 def matmul(a: jax.Array, b: jax.Array) -> jax.Array:
