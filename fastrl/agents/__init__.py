@@ -7,8 +7,6 @@ simulator fused in. The runner jits a ``lax.scan`` of ``update``; a checkpoint i
 
 from __future__ import annotations
 
-import dataclasses
-
 from fastrl.agents.apg import APGConfig, UnsuitableEnvError, make_apg
 from fastrl.agents.base import Algorithm, Learner, PolicyParams, SplitsOverDevices
 from fastrl.agents.es import ESConfig, make_es
@@ -67,10 +65,6 @@ def make_learner(name: str, config, env, network: NetworkConfig, total_updates: 
     return algorithm.make(config, env, network, total_updates)
 
 
-def config_fields(name: str) -> list[str]:
-    return [f.name for f in dataclasses.fields(config_class(name))]
-
-
 __all__ = [
     "ALGORITHMS",
     "Algorithm",
@@ -90,7 +84,6 @@ __all__ = [
     "PPOConfig",
     "PolicyParams",
     "config_class",
-    "config_fields",
     "make_evaluator",
     "make_learner",
     "make_ppo",
