@@ -2,7 +2,8 @@
 
 ``init(key)`` builds the whole training state (a pytree: params, optimiser state, normaliser,
 env states, RNG, counters); ``update(state) -> (state, metrics)`` is one iteration with the
-simulator fused in. The runner jits a ``lax.scan`` of ``update``; a checkpoint is the state.
+simulator fused in. The runner jits a ``lax.fori_loop`` of ``update`` (its trip count, the updates
+per chunk, a traced argument); a checkpoint is the state.
 """
 
 from __future__ import annotations
