@@ -6,9 +6,9 @@
     python -m experiments.learner_stability --quick          # tiny, for CI (~1 min)
 
 For each learner and each batch size, ONE training program holds every learning rate x seed as
-independent agents (``train.vmap_sweep`` and ``train.num_seeds``, ``fastrl/scale.py``); batch
+independent agents (``train.vmap_sweep`` and ``train.num_seeds``, ``fastrl/training/scale.py``); batch
 sizes change shapes, so each is its own program. The runner itself classifies every agent
-(``fastrl/runner.py``):
+(``fastrl/training/runner.py``):
 
 * **diverged**: a loss became non-finite (the runner flags the agent, ``train/diverged``, and
   never checkpoints a batch whose agents all diverged);
@@ -48,7 +48,7 @@ from hydra import compose, initialize_config_dir
 
 import fastrl
 from experiments import results
-from fastrl.train import CONF_DIR, run
+from fastrl.training.train import CONF_DIR, run
 
 TARGET = 0.9  # of the best return, 1000 on inverted_pendulum
 BEST_RETURN = 1000.0

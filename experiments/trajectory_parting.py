@@ -33,7 +33,7 @@ import fastrl
 from experiments import results
 from experiments.reference_scores import quick_run
 from fastrl import envs, physics, reference
-from fastrl.policy import load_run
+from fastrl.training.policy import load_run
 
 THRESHOLDS = (1e-4, 1e-3, 1e-2, 1e-1)
 

@@ -1,10 +1,9 @@
 """``python -m fastrl.train env=ant algo=ppo [key=value ...]``: the training command line.
 
-The code is ``fastrl.training.train``; this module keeps the documented command and import path.
+An entry point only: the code is ``fastrl.training.train``, and code imports it from there.
 """
 
-from fastrl.training.train import *  # noqa: F403
-from fastrl.training.train import __all__, main  # noqa: F401
+from fastrl.training.train import main
 
 if __name__ == "__main__":
     main()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import ast
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -127,3 +128,117 @@ def test_importing_fastrl_leaves_the_environment_untouched():
     )
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout.strip().splitlines()[-1]) == []
+
+
+# One path per module: the training layer's modules are imported from ``fastrl.training`` only.
+# ``fastrl.train`` is the command (``python -m fastrl.train``), never imported by code.
+REMOVED_MODULES = {
+    f"fastrl.{name}" for name in ("runner", "checkpoint", "config", "policy", "scale", "train")
+}
+ENTRY_POINT = PACKAGE / "train.py"
+# A dotted name through a removed module, as mock.patch strings, docstrings and scripts spell it;
+# ``fastrl.train`` followed by a dot and a name reaches into the module, alone it names the command.
+REMOVED_DOTTED = re.compile(r"\bfastrl\.(?:(?:runner|checkpoint|config|policy|scale)\b|train\.\w+)")
+
+
+def _body(tree: ast.Module) -> list[ast.stmt]:
+    """A module's statements without its docstring."""
+    body = tree.body
+    if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+        body = body[1:]
+    return body
+
+
+def _sets_all(node: ast.stmt) -> bool:
+    if isinstance(node, ast.Assign):
+        targets = node.targets
+    elif isinstance(node, ast.AnnAssign | ast.AugAssign):
+        targets = [node.target]
+    else:
+        return False
+    return any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets)
+
+
+def _reexports(tree: ast.Module) -> list[str]:
+    """What makes a module a re-export: star imports, ``__all__`` imported from another module."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            names = {a.name for a in node.names}
+            if "*" in names:
+                found.append(f"line {node.lineno}: from {node.module} import *")
+            if "__all__" in names:
+                found.append(f"line {node.lineno}: imports __all__ from {node.module}")
+    return found
+
+
+def test_no_module_in_fastrl_is_a_reexport_shim():
+    """No module is only imports, ``__all__`` and a docstring (package ``__init__.py`` files, which
+    name their package's API, aside), and none re-exports with ``import *`` or a borrowed
+    ``__all__``: each module has one import path."""
+    shims = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE).as_posix()
+        tree = ast.parse(path.read_text())
+        shims += [f"{rel} {what}" for what in _reexports(tree)]
+        body = _body(tree)
+        if path.name == "__init__.py" or not body:
+            continue
+        if all(isinstance(n, ast.Import | ast.ImportFrom) or _sets_all(n) for n in body):
+            shims.append(f"{rel}: only imports and __all__")
+    assert not shims, "re-export shims in fastrl/:\n  " + "\n  ".join(shims)
+
+
+def test_fastrl_train_is_only_the_commands_entry_point():
+    """``fastrl/train.py`` keeps ``python -m fastrl.train`` working and exports nothing: it imports
+    ``main`` from ``fastrl.training.train`` and runs it, with no ``__all__`` and no other name."""
+    body = [ast.unparse(n) for n in _body(ast.parse(ENTRY_POINT.read_text()))]
+    assert body == ["from fastrl.training.train import main", "if __name__ == '__main__':\n    main()"]
+
+
+def _imports_in(tree: ast.AST) -> list[tuple[int, str]]:
+    """(line, module) for every module an import statement names, ``from fastrl import x``
+    counted as ``fastrl.x`` too. Strings that are Python themselves (scripts run in a child
+    process) are read as well, their lines counted from the string's."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            found.append((node.lineno, node.module))
+            found += [(node.lineno, f"{node.module}.{a.name}") for a in node.names]
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and "fastrl" in node.value:
+            try:
+                inner = ast.parse(node.value)
+            except SyntaxError:
+                continue
+            found += [(node.lineno + line - 1, name) for line, name in _imports_in(inner)]
+    return found
+
+
+def _files(top: str, pattern: str) -> list[Path]:
+    """The files under ``ROOT/top`` matching ``pattern``, hidden folders (virtual envs) aside."""
+    paths = sorted((ROOT / top).rglob(pattern))
+    return [p for p in paths if not any(s.startswith(".") for s in p.relative_to(ROOT).parts)]
+
+
+def _removed_names(path: Path) -> list[str]:
+    """Where ``path`` imports a removed module or names a member through one."""
+    rel, text = path.relative_to(ROOT).as_posix(), path.read_text()
+    found = [
+        f"{rel}:{text.count(chr(10), 0, m.start()) + 1} names {m.group()}"
+        for m in REMOVED_DOTTED.finditer(text)
+    ]
+    if path.suffix == ".py":
+        found += [f"{rel}:{n} imports {m}" for n, m in _imports_in(ast.parse(text)) if m in REMOVED_MODULES]
+    return found
+
+
+def test_nothing_imports_the_removed_module_paths():
+    """No file in fastrl/, tests/ or experiments/ imports ``fastrl.{runner,checkpoint,config,
+    policy,scale,train}`` or names a member through one of them (a mock.patch string through a path
+    that no longer holds the code would patch nothing), and the docs and configs name none either."""
+    paths = [*_files("fastrl", "*.py"), *_files("tests", "*.py"), *_files("experiments", "*.py")]
+    paths += [ROOT / "README.md", *_files("docs", "*.md"), *_files("conf", "*.yaml")]
+    found = [where for path in paths for where in _removed_names(path)]
+    assert not found, "imports of removed module paths:\n  " + "\n  ".join(found)

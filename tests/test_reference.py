@@ -16,7 +16,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from fastrl import envs, evaluate, reference
-from fastrl.train import CONF_DIR, run
+from fastrl.training.train import CONF_DIR, run
 
 
 def _train(tmp_path, overrides):

@@ -2,12 +2,11 @@
 
 ``init(key)`` builds the whole training state (a pytree: params, optimiser state, normaliser,
 env states, RNG, counters); ``update(state) -> (state, metrics)`` is one iteration with the
-simulator fused in. The runner jits a ``lax.scan`` of ``update``; a checkpoint is the state.
+simulator fused in. The runner jits a ``lax.fori_loop`` of ``update`` (its trip count, the updates
+per chunk, a traced argument); a checkpoint is the state.
 """
 
 from __future__ import annotations
-
-import dataclasses
 
 from fastrl.agents.apg import APGConfig, UnsuitableEnvError, make_apg
 from fastrl.agents.base import Algorithm, Learner, PolicyParams, SplitsOverDevices
@@ -67,10 +66,6 @@ def make_learner(name: str, config, env, network: NetworkConfig, total_updates: 
     return algorithm.make(config, env, network, total_updates)
 
 
-def config_fields(name: str) -> list[str]:
-    return [f.name for f in dataclasses.fields(config_class(name))]
-
-
 __all__ = [
     "ALGORITHMS",
     "Algorithm",
@@ -90,7 +85,6 @@ __all__ = [
     "PPOConfig",
     "PolicyParams",
     "config_class",
-    "config_fields",
     "make_evaluator",
     "make_learner",
     "make_ppo",

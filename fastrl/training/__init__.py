@@ -7,9 +7,8 @@
 - ``files``: what a run writes into its folder, never through a link, whole or not at all.
 - ``curve``: ``metrics.csv`` read back and the learning curve drawn.
 - ``policy``: trained policies from run folders (``load_policy``, ``load_run``).
-- ``train``: the command line, ``python -m fastrl.train`` (Hydra).
-
-The old paths (``fastrl.config``, ``fastrl.runner``, ``fastrl.train`` ...) re-export these modules.
+- ``train``: the command line (Hydra), run as ``python -m fastrl.train`` (``fastrl/train.py`` is
+  its entry point only).
 """
 
 from fastrl.training.checkpoint import Checkpointer, CheckpointError

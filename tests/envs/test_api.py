@@ -147,7 +147,7 @@ def test_vector_env_same_step_autoreset_and_async(pendulum):
 
 def test_ant_can_leave_contact_forces_out_of_its_observation():
     """Gymnasium v5's ``include_cfrc_ext_in_observation`` keyword, also reachable from config."""
-    from fastrl.config import EnvConfig
+    from fastrl.training.config import EnvConfig
 
     full = envs.make("ant")
     short = EnvConfig(name="ant", options={"include_cfrc_ext_in_observation": False}).make()

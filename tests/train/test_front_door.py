@@ -14,9 +14,9 @@ from hydra.errors import MissingConfigException
 
 from fastrl import agents, envs
 from fastrl.agents.ppo import gae
-from fastrl.checkpoint import CheckpointError
-from fastrl.config import ConfigError, RunConfig
-from fastrl.train import CONF_DIR, run
+from fastrl.training.checkpoint import CheckpointError
+from fastrl.training.config import ConfigError, RunConfig
+from fastrl.training.train import CONF_DIR, run
 
 QUICK = ["env=inverted_pendulum", "debug=quick", "logger=quiet"]
 
@@ -89,7 +89,7 @@ def test_env_options_reach_the_env_and_bad_ones_are_named():
 
 def _weights_of(run_dir):
     """The leaves of the latest checkpoint's training state, and its step."""
-    from fastrl.policy import load_run
+    from fastrl.training.policy import load_run
 
     *_, state = load_run(run_dir)
     return jax.tree.leaves(state)
@@ -119,7 +119,7 @@ def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path, capsys):
         if chunk == 1:
             os.kill(os.getpid(), signal.SIGINT)
 
-    from fastrl import runner
+    from fastrl.training import runner
 
     cfg = compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}"])
     rc = typed(QUICK_RESUME)
@@ -135,7 +135,7 @@ def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path, capsys):
 
 
 def test_max_seconds_stops_the_run_on_time_with_a_checkpoint(tmp_path, capsys):
-    from fastrl.checkpoint import Checkpointer
+    from fastrl.training.checkpoint import Checkpointer
 
     long = [*QUICK, "train.total_env_steps=100_000_000", "train.updates_per_chunk=null"]
     out = run(compose_cfg([*long, f"run_dir={tmp_path}", "train.max_seconds=0.001"]))
@@ -192,8 +192,7 @@ def test_corrupt_or_incompatible_checkpoint_gives_a_clear_error(tmp_path):
 
 
 def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path, capsys):
-    from fastrl.policy import load_run
-    from fastrl.training.policy import start_from
+    from fastrl.training.policy import load_run, start_from
 
     source = tmp_path / "source"
     run(compose_cfg([*QUICK_RESUME, f"run_dir={source}", "train.stop_after_chunks=1"]))
@@ -245,7 +244,7 @@ def test_a_diverging_run_is_reported_and_never_saved(tmp_path, capsys):
 
 
 def test_collapse_watch_flags_a_return_that_falls_back():
-    from fastrl.runner import CollapseWatch
+    from fastrl.training.runner import CollapseWatch
 
     w = CollapseWatch(2)
     # Agent 0 learns (10 -> 100) then falls to 40: more than half the gain lost.
@@ -328,7 +327,7 @@ def test_load_policy_and_evaluate_cli(tmp_path, capsys):
 
 def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
     """The command line gives PPO one CPU device per core, as many as divide its batches."""
-    from fastrl import train
+    from fastrl.training import train
 
     monkeypatch.delenv("FASTRL_CPU_DEVICES", raising=False)
     ppo = typed(["env=inverted_pendulum", "algo=ppo", "algo.num_envs=6", "algo.unroll_length=4"])
@@ -427,7 +426,7 @@ def test_progress_line_says_when_no_training_episode_has_ended_instead_of_printi
 def test_a_run_trained_with_a_training_aid_loads_and_scores_the_task(tmp_path):
     """A leap_cube_reorient run trained with near targets (a training aid whose episodes carry
     an extra countdown) restores its checkpoint, and the loaded env is the task's (no aid)."""
-    from fastrl.policy import load_policy, load_run
+    from fastrl.training.policy import load_policy, load_run
 
     overrides = ["env=leap_cube_reorient", "algo=ppo", "debug=quick", "logger=quiet",
                  "env.options.near_targets=0.5", "env.episode_length=4", "algo.num_envs=4"]  # fmt: skip

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from fastrl import envs, evaluate, physics
-from fastrl.checkpoint import CheckpointError
-from fastrl.config import ConfigError
-from fastrl.policy import load_policy, load_run
-from fastrl.runner import RunDirError, RunDirLock
-from fastrl.train import run
+from fastrl.training.checkpoint import CheckpointError
+from fastrl.training.config import ConfigError
+from fastrl.training.policy import load_policy, load_run
+from fastrl.training.runner import RunDirError, RunDirLock
+from fastrl.training.train import run
 
 from .test_front_door import QUICK, compose_cfg
 

@@ -10,9 +10,10 @@ import jax
 import numpy as np
 import pytest
 
-from fastrl import agents, report, runner, scale
-from fastrl.checkpoint import CheckpointError
-from fastrl.config import ConfigError
+from fastrl import agents, report
+from fastrl.training import runner, scale
+from fastrl.training.checkpoint import CheckpointError
+from fastrl.training.config import ConfigError
 
 from .test_front_door import QUICK, typed
 
@@ -126,7 +127,7 @@ _SHARD_SCRIPT = """
 import json, sys, jax, numpy as np
 import fastrl
 fastrl.use_recommended_xla_flags()
-from fastrl import runner
+from fastrl.training import runner
 from tests.train.test_front_door import typed
 cfg = typed(sys.argv[2:])
 out = runner.train(cfg, sys.argv[1])
@@ -208,7 +209,7 @@ def test_two_processes_train_as_one_process_on_two_devices(tmp_path, two_device_
     assert ma["env_steps"][-1] == mb["env_steps"][-1] == 1024
     # where the chunks end changes nothing: the final evaluation and the trained weights agree
     np.testing.assert_allclose(ma["eval/episode_return"][-1], mb["eval/episode_return"][-1], rtol=1e-4)
-    from fastrl.policy import load_run
+    from fastrl.training.policy import load_run
 
     a, b = (jax.tree.leaves(load_run(d)[-1]) for d in (run_dir, two_device_run))
     for x, y in zip(a, b, strict=True):
