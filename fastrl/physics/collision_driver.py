@@ -108,15 +108,20 @@ def key_types(key) -> tuple:
 
 
 def _hull_buckets(m: Model, idx: np.ndarray) -> np.ndarray:
-    """Each pair's hull-size group: the larger of its two meshes' vertex counts rounded up to a
-    power of two (1 with no mesh); then, while a type pair has more than ``MESH_GROUPS`` groups,
-    the group whose padding up to the next size costs least (pairs x added vertices) joins that
-    next group."""
+    """Each pair's hull-size group, named by its largest vertex count (0 with no mesh): from the
+    largest size down, a group takes every size above half its own, so padding a hull to its
+    group's size at most doubles its support's cost; then, while a type pair has more than
+    ``MESH_GROUPS`` groups, the group whose padding up to the next size costs least (pairs x
+    added vertices) joins that next group."""
     g = np.stack([m.pair_geom1[idx], m.pair_geom2[idx]])
     if not m.mesh_vertnum.size:  # no meshes in the model
-        return np.ones(idx.size, np.int64)
+        return np.zeros(idx.size, np.int64)
     num = np.where(m.geom_meshid[g] >= 0, m.mesh_vertnum[np.maximum(m.geom_meshid[g], 0)], 0).max(0)
-    bucket = (2 ** np.ceil(np.log2(np.maximum(num, 1)))).astype(np.int64)
+    bucket, heads = np.zeros(idx.size, np.int64), []
+    for size in np.unique(num)[::-1]:
+        if not heads or 2 * size <= heads[-1]:
+            heads.append(size)
+        bucket[num == size] = heads[-1]
     sizes = list(np.unique(bucket))
     while len(sizes) > MESH_GROUPS:
         cost = [np.sum(bucket == a) * (b - a) for a, b in zip(sizes[:-1], sizes[1:], strict=False)]
@@ -127,30 +132,23 @@ def _hull_buckets(m: Model, idx: np.ndarray) -> np.ndarray:
 
 
 def _convex_groups(m: Model, key: tuple[int, int], seen: set) -> list[tuple[Convex, np.ndarray]]:
-    """The GJK/EPA groups of ``key``'s program (``collision_gjk.program``): each type pair with
-    that program split by hull size as if alone (``_hull_buckets``), then the type pairs' groups
-    of one hull size joined, each keyed by the types it holds: fewer programs to compile, no
-    more padding. Empty when the program's groups were made already (``seen``). Under MJX's
-    ``max_geom_pairs``, which caps each type pair and condim, type pairs are not mixed."""
+    """The GJK/EPA groups of ``key``'s program (``collision_gjk.program``): the pairs of every
+    type pair with that program, split by hull size (``_hull_buckets``), each group keyed by the
+    types it holds, so several type pairs compile one GJK/EPA. Empty when the program's groups
+    were made already (``seen``). Under MJX's ``max_geom_pairs``, which caps each type pair and
+    condim, type pairs are not mixed."""
     program = key if capped(m, key) else gjk.program(*key)
     if program in seen:
         return []
     seen.add(program)
     t1, t2 = m.geom_type[m.pair_geom1], m.geom_type[m.pair_geom2]
     plain = ~m.pair_faceclip.astype(bool)
-    idx, bucket = [], []
-    for k in SUPPORTED:
-        if not _plain_gjk(k) or (k if capped(m, k) else gjk.program(*k)) != program:
-            continue
-        i = np.flatnonzero((t1 == k[0]) & (t2 == k[1]) & plain)
-        if i.size:
-            idx.append(i)
-            by_condim = capped(m, k) and GeomType.MESH not in k
-            bucket.append(m.pair_condim[i] if by_condim else _hull_buckets(m, i))
-    if not idx:
+    ours = [k for k in SUPPORTED if _plain_gjk(k) and (k if capped(m, k) else gjk.program(*k)) == program]
+    idx = np.flatnonzero(plain & np.any([(t1 == k[0]) & (t2 == k[1]) for k in ours], axis=0))
+    if not idx.size:
         return []
-    order = np.argsort(np.concatenate(idx), kind="stable")  # pair order within each group
-    idx, bucket = np.concatenate(idx)[order], np.concatenate(bucket)[order]
+    by_condim = capped(m, key) and GeomType.MESH not in key
+    bucket = m.pair_condim[idx] if by_condim else _hull_buckets(m, idx)
     groups = []
     for b in np.unique(bucket):
         sub = idx[bucket == b]

@@ -375,6 +375,7 @@ _CURVED = (GeomType.CYLINDER, GeomType.ELLIPSOID)
 _FLAT = (GeomType.CAPSULE, GeomType.CYLINDER, GeomType.BOX, GeomType.MESH)
 MULTI_CONTACTS = 5
 _PERTURBATION = 1e-3  # radians (MuJoCo's multiccd perturbation angle)
+_SIN, _COS = float(np.sin(_PERTURBATION)), float(np.cos(_PERTURBATION))
 _DISTINCT = 1e-3  # a new contact counts if this far (times the smaller rbound) from the others
 
 
@@ -405,10 +406,10 @@ def _program(types1, types2, shared) -> tuple[int, int]:
     return program(_types(types1)[0], _types(types2)[0])
 
 
-def _rotation(axis, angle):
-    """Rotation matrix about unit ``axis`` by ``angle`` (Rodrigues)."""
+def _rotation(axis, sin, cos):
+    """Rotation matrix about unit ``axis`` by the angle of ``sin`` and ``cos`` (Rodrigues)."""
     k = jnp.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]], axis.dtype)
-    return jnp.eye(3, dtype=axis.dtype) + jnp.sin(angle) * k + (1.0 - jnp.cos(angle)) * (k @ k)
+    return jnp.eye(3, dtype=axis.dtype) + sin * k + (1.0 - cos) * (k @ k)
 
 
 def _tangents(normal):
@@ -490,28 +491,39 @@ def convex_pair(type1, type2, multi: bool = True, shared=None):
     contact = single_contact(type1, type2, shared)
 
     def collide(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, codes, margin, rbound):
-        dist, pos, normal = contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, codes)
-        dists, poss, normals, kept = [dist], [pos], [normal], [jnp.array(True)]
-        if extra:
-            tolerance = _DISTINCT * rbound
-            p1, m1, p2, m2 = [], [], [], []  # each pose turned alone: batched, they round differently
-            for axis in _tangents(normal):
-                for angle in (-_PERTURBATION, _PERTURBATION):
-                    rot = _rotation(axis, angle)
-                    p1.append(pos + rot @ (pos1 - pos))
-                    m1.append(rot @ mat1)
-                    p2.append(pos + rot.T @ (pos2 - pos))
-                    m2.append(rot.T @ mat2)
-            turned = lambda p1, m1, p2, m2: contact(p1, m1, size1, p2, m2, size2, verts1, verts2, codes)  # noqa: E731
-            # the four searches are independent: one vmapped GJK/EPA, not four copies to compile
-            found_turned = jax.vmap(turned)(*map(jnp.stack, (p1, m1, p2, m2)))
-            for d, x, n in zip(*found_turned, strict=True):
-                apart = jnp.linalg.norm(jnp.stack(poss) - x, axis=-1) > tolerance
-                found = (dist < margin) & (d < margin) & jnp.all(apart | ~jnp.stack(kept))
-                dists.append(jnp.where(found, dist, _FAR))
-                poss.append(x)
-                normals.append(n)
-                kept.append(found)
-        return jnp.stack(dists), jnp.stack(poss), jnp.stack(normals), jnp.zeros((len(dists), 3), pos1.dtype)
+        if not extra:
+            dist, pos, normal = contact(pos1, mat1, size1, pos2, mat2, size2, verts1, verts2, codes)
+            return dist[None], pos[None], normal[None], jnp.zeros((1, 3), pos1.dtype)
+
+        def search(k, found):
+            """The k-th contact: the plain one (k = 0), then the turned ones, which turn about the
+            first's tangents around its point. One loop body, so GJK/EPA compiles once."""
+            dists, poss, normals = found
+            first, point = k == 0, poss[0]
+            turn = jnp.maximum(k - 1, 0)
+            t1, t2 = _tangents(jnp.where(first, jnp.array([0.0, 0.0, 1.0], pos1.dtype), normals[0]))
+            axis = jnp.where(turn < 2, t1, t2)
+            sin = jnp.where(turn % 2 == 0, -_SIN, _SIN).astype(pos1.dtype)
+            rot = _rotation(axis, sin, jnp.asarray(_COS, pos1.dtype))
+            p1 = jnp.where(first, pos1, point + rot @ (pos1 - point))
+            m1 = jnp.where(first, mat1, rot @ mat1)
+            p2 = jnp.where(first, pos2, point + rot.T @ (pos2 - point))
+            m2 = jnp.where(first, mat2, rot.T @ mat2)
+            d, x, n = contact(p1, m1, size1, p2, m2, size2, verts1, verts2, codes)
+            return dists.at[k].set(d), poss.at[k].set(x), normals.at[k].set(n)
+
+        count = extra + 1
+        zeros = jnp.zeros((count, 3), pos1.dtype)
+        found_d, found_x, found_n = jax.lax.fori_loop(0, count, search, (zeros[:, 0], zeros, zeros))
+        dist, tolerance = found_d[0], _DISTINCT * rbound
+        dists, poss, kept = [dist], [found_x[0]], [jnp.array(True)]
+        for k in range(1, count):
+            x = found_x[k]
+            apart = jnp.linalg.norm(jnp.stack(poss) - x, axis=-1) > tolerance
+            found = (dist < margin) & (found_d[k] < margin) & jnp.all(apart | ~jnp.stack(kept))
+            dists.append(jnp.where(found, dist, _FAR))
+            poss.append(x)
+            kept.append(found)
+        return jnp.stack(dists), found_x, found_n, jnp.zeros((count, 3), pos1.dtype)
 
     return collide

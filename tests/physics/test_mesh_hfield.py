@@ -294,11 +294,12 @@ def _hull(m, g: int) -> jax.Array:
 def test_type_pairs_of_one_gjk_program_share_a_group(x64):
     """Plain GJK/EPA pairs of different type pairs that share EPA's iteration count, their
     candidate count and a hull size form one group (one compiled GJK/EPA, each pair's types as
-    data): here the cylinder's pairs with a cylinder and a box, and the ellipsoid's with a box
-    and a cylinder. Every contact of such a group is what its own type pair's function gives
-    alone (float64): the depth to 1e-10, the position to 1e-5 and the normal to 1e-4. They differ as
-    compiled programs do, where EPA on a curved surface stops as rounding says it has converged;
-    MuJoCo's own contacts are 3e-2 from either there (``test_gjk_epa_contacts_match_mujoco``)."""
+    data): here the cylinder's pairs with a cylinder and a box, the ellipsoid's with a box and a
+    cylinder, and a box's and a capsule's with two meshes. Every contact of such a group is what
+    its own type pair's function gives alone (float64): the depth to 1e-10, the position to 1e-5
+    and the normal to 1e-4. They differ as compiled programs do, where EPA on a curved surface
+    stops as rounding says it has converged; MuJoCo's own contacts are 3e-2 from either there
+    (``test_gjk_epa_contacts_match_mujoco``)."""
     mj = _compile(_gjk_xml(multiccd=True))
     m = physics.model_from_mujoco(mj)
     mixed = [idx for k, idx in pair_groups(m) if isinstance(k, Convex) and len(k.types1) * len(k.types2) > 1]
@@ -307,6 +308,7 @@ def test_type_pairs_of_one_gjk_program_share_a_group(x64):
         for idx in mixed
     ]
     assert sorted(map(sorted, names)) == [
+        [("box", "rock"), ("caps", "cube")],
         [("cyl", "box"), ("cyl", "cyl2")],
         [("ell", "box"), ("ell", "cyl2")],
     ]
@@ -314,9 +316,16 @@ def test_type_pairs_of_one_gjk_program_share_a_group(x64):
     d = jax.jit(jax.vmap(lambda q: physics.forward(m, physics.make_data(m).replace(qpos=q))))(
         jnp.asarray(qpos)
     )
+    assert _compared_to_alone(m, d, np.concatenate(mixed)) >= 20
+
+
+def _compared_to_alone(m, d, pairs) -> int:
+    """Asserts each of ``pairs``' contacts in ``d`` (a batch) is what its own type pair's GJK/EPA
+    gives for that pair alone: the depth to 1e-10, the position to 1e-5, the normal to 1e-4 (float64);
+    returns how many contacts were compared."""
     layout = contact_layout(m)
     compared = 0
-    for p in np.concatenate(mixed):
+    for p in pairs:
         g1, g2 = int(m.pair_geom1[p]), int(m.pair_geom2[p])
         alone = gjk.convex_pair(int(m.geom_type[g1]), int(m.geom_type[g2]))
         alone = jax.jit(jax.vmap(alone, (0, 0, None, 0, 0, None, None, None, None, None, None)))
@@ -334,7 +343,46 @@ def test_type_pairs_of_one_gjk_program_share_a_group(x64):
         close(np.asarray(d.contact_pos[:, layout == p])[found], np.asarray(pos)[found], atol=1e-5)
         close(np.asarray(d.contact_frame[:, layout == p, 0])[found], np.asarray(normal)[found], atol=1e-4)
         compared += found.sum()
-    assert compared >= 20
+    return compared
+
+
+def _sphere_points(n: int, radius: float) -> np.ndarray:
+    """``n`` points spread over a sphere (a Fibonacci lattice): every one is a hull vertex."""
+    k = np.arange(n) + 0.5
+    z = 1 - 2 * k / n
+    phi = np.pi * (1 + 5**0.5) * k
+    r = np.sqrt(1 - z * z)
+    return radius * np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+
+
+def test_gjk_groups_take_hulls_over_half_their_size(x64):
+    """GJK/EPA pairs are split by hull size from the largest down, each group taking every hull
+    over half its size: a box against hulls of 50, 30 and 20 vertices makes the groups {50, 30}
+    and {20} (padding at most doubles a support point's cost; power-of-two buckets would split
+    50 from 30). A hull padded to its group's size gives the contacts it gives alone."""
+    sizes = {"h50": 50, "h30": 30, "h20": 20}
+    assets = "".join(
+        f'<mesh name="{k}" vertex="{_vertex(_sphere_points(n, 0.05))}"/>' for k, n in sizes.items()
+    )
+    shapes = {"box": 'type="box" size="0.04 0.03 0.05"', **{k: f'type="mesh" mesh="{k}"' for k in sizes}}
+    bodies = "".join(
+        f'<body name="{k}"><freejoint/><geom name="{k}" {v} contype="0" conaffinity="0"/></body>'
+        for k, v in shapes.items()
+    )
+    pairs = "".join(f'<pair geom1="box" geom2="{k}" margin="0.01"/>' for k in sizes)
+    mj = _compile(
+        f"<mujoco><asset>{assets}</asset><worldbody>{bodies}</worldbody><contact>{pairs}</contact></mujoco>"
+    )
+    m = physics.model_from_mujoco(mj)
+    assert sorted(m.mesh_vertnum) == [20, 30, 50]
+    groups = [idx for k, idx in pair_groups(m) if isinstance(k, Convex)]
+    names = sorted(sorted(mj.geom(int(m.pair_geom2[i])).name for i in idx) for idx in groups)
+    assert names == [["h20"], ["h30", "h50"]]
+    qpos = _clustered_poses(mj, 12)
+    d = jax.jit(jax.vmap(lambda q: physics.forward(m, physics.make_data(m).replace(qpos=q))))(
+        jnp.asarray(qpos)
+    )
+    assert _compared_to_alone(m, d, next(idx for idx in groups if idx.size == 2)) >= 6
 
 
 def test_gjk_epa_contacts_match_mujoco(x64):
