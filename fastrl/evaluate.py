@@ -27,12 +27,12 @@ from fastrl.training.policy import load_run
 __all__ = ["main", "make_rollout", "rollout_frames", "rollout_qpos"]
 
 
-def rollout_frames(env, act, params, key, length: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(T, nq) positions and (T, M, 3) marker positions of one deterministic episode (until it
-    ends, at most ``length`` steps)."""
-    qpos, alive, marks = jax.device_get(jax.jit(make_rollout(env, act, length))(params, key))
+def rollout_frames(env, act, params, key, length: int | None = None) -> tuple[np.ndarray, ...]:
+    """(T, nq) positions, (T, M, 3) marker positions and (T,) contacts the scene's budgets
+    dropped of one deterministic episode (until it ends, at most ``length`` steps)."""
+    qpos, alive, marks, dropped = jax.device_get(jax.jit(make_rollout(env, act, length))(params, key))
     alive = np.asarray(alive)
-    return np.asarray(qpos)[alive], np.asarray(marks)[alive]
+    return np.asarray(qpos)[alive], np.asarray(marks)[alive], np.asarray(dropped)[alive]
 
 
 def rollout_qpos(env, act, params, key, length: int | None = None) -> np.ndarray:
@@ -94,13 +94,14 @@ def _show(args, rc, env, learner, params, env_steps: int) -> int:
     try:
         if args.video:
             viewer.video.check_format(args.video)  # before the rollout: fail fast
-        traj, marks = rollout_frames(env, learner.act, params, jax.random.PRNGKey(args.seed), args.steps)
+        key = jax.random.PRNGKey(args.seed)
+        traj, marks, dropped = rollout_frames(env, learner.act, params, key, args.steps)
         if args.export:
             np.savez(args.export, qpos=traj, env=rc.env.name, dt=env.dt)
             print(f"wrote {args.export} ({len(traj)} frames)")
         if args.html:
             title = f"{rc.env.name} / {rc.algo_name} at {env_steps:,d} env steps"
-            path = viewer.write_html(env, traj, args.html, title, markers=marks)
+            path = viewer.write_html(env, traj, args.html, title, markers=marks, overflow=dropped)
             print(f"wrote {path} ({len(traj)} frames, {path.stat().st_size / 1e6:.2f} MB)")
         if args.video:
             print(f"wrote {viewer.render_video(env, traj, args.video)} ({len(traj)} frames)")

@@ -144,3 +144,22 @@ def test_goal_markers_are_embedded_and_drawn(tmp_path):
     )
     assert re.search(r'<pre id="errors"[^>]*>(.*?)</pre>', dom, re.S)[1] == ""
     assert int(re.search(r'<span id="frame">(\d+)</span>', dom)[1]) == 3, "the marked frame was not drawn"
+
+
+def test_dropped_contacts_show_in_the_bar(tmp_path):
+    """Frames where the scene's contact budgets dropped contacts say so in the control bar."""
+    arm = envs.make("arm_reach")
+    qpos = np.tile(np.asarray(arm.model.qpos0), (6, 1))
+    dropped = np.array([0, 0, 0, 2, 0, 0])
+    assert scene.build_scene(arm, qpos, overflow=dropped)["overflow"] == [0, 0, 0, 2, 0, 0]
+    assert scene.build_scene(arm, qpos)["overflow"] == []
+    with pytest.raises(ValueError, match="overflow has shape"):
+        scene.build_scene(arm, qpos, overflow=dropped[:3])
+    if chromium.find_chromium() is None:
+        pytest.skip("no chromium on PATH (apt-get install chromium)")
+    page = viewer.write_html(arm, qpos, tmp_path / "arm.html", overflow=dropped)
+    shown = lambda frame: re.search(  # noqa: E731
+        r'<span id="overflow"[^>]*>(.*?)</span>', chromium.dump_dom(page, budget_ms=2000, frame=frame)[0]
+    )[1]
+    assert shown(3) == "contacts dropped: 2"
+    assert shown(1) == ""

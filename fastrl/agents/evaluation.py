@@ -48,7 +48,7 @@ def make_evaluator(env: Env, act, num_envs: int, mesh: Mesh | None = None):
 
 
 def make_rollout(env, act, length: int | None = None):
-    """A jittable ``(params, key) -> (qpos, alive, markers)`` of one deterministic episode.
+    """A jittable ``(params, key) -> (qpos, alive, markers, overflow)`` of one deterministic episode.
 
     Args:
       env: the env; act: the learner's deterministic ``act(params, obs)``.
@@ -56,8 +56,10 @@ def make_rollout(env, act, length: int | None = None):
     Returns:
       The function; its outputs are (length + 1, nq) positions from the reset on, a
       (length + 1,) mask of the frames that belong to the episode, and the (length + 1, M, 3)
-      positions of the env's ``markers`` (its goals) per frame. The step that ends the episode
-      is masked out: its state already holds the next episode's reset.
+      positions of the env's ``markers`` (its goals) per frame, and (length + 1,) the contacts
+      the scene's budgets dropped in the step that led to each frame (the env's
+      ``contact_overflow`` metric; zeros where it has none). The step that ends the episode is
+      masked out: its state already holds the next episode's reset.
     """
     env = env.for_evaluation()
     length = env.episode_length if length is None else min(length, env.episode_length)
@@ -69,11 +71,14 @@ def make_rollout(env, act, length: int | None = None):
             s, alive = carry
             nxt = env.step(s, act(params, s.obs))
             alive = alive & ~nxt.done
-            return (nxt, alive), (nxt.data.qpos, alive, env.markers(nxt.task))
+            dropped = nxt.metrics.get("contact_overflow", jnp.zeros(()))
+            return (nxt, alive), (nxt.data.qpos, alive, env.markers(nxt.task), dropped)
 
-        _, (qpos, alive, marks) = jax.lax.scan(one, (state, jnp.ones((), bool)), None, length=length)
+        scan = jax.lax.scan(one, (state, jnp.ones((), bool)), None, length=length)
+        qpos, alive, marks, dropped = scan[1]
         first = lambda x, xs: jnp.concatenate([x[None], xs])  # noqa: E731
         marks = first(env.markers(state.task), marks)
-        return first(state.data.qpos, qpos), first(jnp.ones((), bool), alive), marks
+        dropped = first(jnp.zeros((), dropped.dtype), dropped)
+        return first(state.data.qpos, qpos), first(jnp.ones((), bool), alive), marks, dropped
 
     return rollout

@@ -44,7 +44,9 @@ class State:
       final_obs     (obs_size,) observation the last step produced before any auto-reset;
                     equals ``obs`` when the episode goes on
       metrics       dict name -> () per-step quantities: each weighted reward term as
-                    ``reward_<term>``, plus env-specific ones (``x_velocity``...) and ``diverged``
+                    ``reward_<term>``, plus env-specific ones (``x_velocity``...) and ``diverged``;
+                    ``contact_overflow`` where the scene's contact budgets can drop contacts:
+                    the most any physics step of this env step dropped (``Data``)
       episode_return () return of the current episode so far; at a done step, the finished
                     episode's total (reset on the next step)
       episode_length () steps of the current episode so far (same convention)
@@ -125,6 +127,8 @@ class Env:
       integrator: ``"euler"``, ``"rk4"`` or ``"implicitfast"`` (None: the asset's).
       timestep: physics timestep override (None: the asset's).
       terminate_when_unhealthy: end the episode when the env's health check fails.
+      nconmax: contact slots, the most contacts with constraint rows at once (None: the env's
+        own, else the scene's or the loader's rule; ``physics.load_mjcf``).
     """
 
     name: str = ""
@@ -162,6 +166,7 @@ class Env:
         integrator: str | None = None,
         timestep: float | None = None,
         terminate_when_unhealthy: bool = True,
+        nconmax: int | None = None,
     ):
         # ``None`` means the env's default; anything else, 0 included, is the user's value.
         self.episode_length = self.default_episode_length if episode_length is None else episode_length
@@ -191,6 +196,8 @@ class Env:
             raise FileNotFoundError(f"{self.name}: asset {path} does not exist")
         self.asset_path = path  # the MJCF file the model was loaded from
         kw = {} if solver_iterations is None else {"solver_iterations": int(solver_iterations)}
+        if nconmax is not None:
+            self.nconmax = nconmax
         if self.nconmax is not None:
             kw["nconmax"] = self.nconmax
         model = physics.load_mjcf(
@@ -349,9 +356,10 @@ class Env:
         ctrl = self._control(action, state.task)
 
         def substep(data, _):
-            return physics.step(model, data, ctrl), None
+            data = physics.step(model, data, ctrl)
+            return data, data.contact_overflow
 
-        after, _ = jax.lax.scan(substep, before, None, length=self.frame_skip)
+        after, overflow = jax.lax.scan(substep, before, None, length=self.frame_skip)
         task_key = jax.random.fold_in(state.rng, 2)
         terms, terminated, extra, task = self._reward_task(model, before, after, action, state.task, task_key)
         reward = sum(terms.values())
@@ -368,6 +376,8 @@ class Env:
         metrics = {f"reward_{k}": jnp.where(diverged, 0.0, v) for k, v in terms.items()}
         metrics.update({k: jnp.where(diverged, 0.0, v) for k, v in extra.items()})
         metrics["diverged"] = diverged.astype(obs.dtype)
+        if physics.contact_budgeted(self.model):  # never silent: what the budgets dropped
+            metrics["contact_overflow"] = jnp.max(overflow)
         metrics = {k: jnp.asarray(v, obs.dtype) for k, v in metrics.items()}
 
         # Auto-reset, branch-free: draw a new episode and keep it where this one is done.
@@ -427,7 +437,8 @@ class Env:
             return self._reward_task(model, data, data, action, task, key)
 
         terms, _, extra, _ = jax.eval_shape(reward)
-        return [f"reward_{k}" for k in terms] + list(extra) + ["diverged"]
+        overflow = ["contact_overflow"] if physics.contact_budgeted(model) else []
+        return [f"reward_{k}" for k in terms] + list(extra) + ["diverged"] + overflow
 
     # ---------------------------------------------------------------- helpers
 

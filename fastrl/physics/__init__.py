@@ -1,5 +1,6 @@
 """fastrl's branch-free JAX rigid-body engine in generalized coordinates, faithful to MuJoCo."""
 
+from fastrl.physics.constraint import contact_budgeted
 from fastrl.physics.forward import (
     DIVERGENCE_BOUND,
     euler,
@@ -22,6 +23,7 @@ __all__ = [
     "Model",
     "UnsupportedFeatureError",
     "cfrc_ext",
+    "contact_budgeted",
     "contact_force",
     "euler",
     "forward",

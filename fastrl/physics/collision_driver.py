@@ -239,12 +239,33 @@ def _broadphase(m: Model, d: Data, idx: np.ndarray, fn, args: tuple, axes: tuple
     """A group's contacts with MJX's ``max_geom_pairs``: only the pairs whose bounding spheres
     overlap most are collided, and only their contacts are emitted, in the group's pair order
     (so ties in depth resolve as they would over the whole group). Returns the contacts and
-    each collided pair's index."""
-    _, chosen = jax.lax.top_k(_overlap(m, d, idx), m.max_geom_pairs)
+    each collided pair's index, and how many pairs whose spheres overlap were left out."""
+    overlap = _overlap(m, d, idx)
+    kept, chosen = jax.lax.top_k(overlap, m.max_geom_pairs)
     chosen = jnp.sort(chosen)
     take = lambda a: jax.tree.map(lambda x: x[chosen], a)  # noqa: E731
     args = tuple(a if ax is None else take(a) for a, ax in zip(args, axes, strict=True))
-    return jax.vmap(fn, axes)(*args), jnp.asarray(idx, jnp.int32)[chosen]
+    dropped = jnp.sum(overlap >= 0) - jnp.sum(kept >= 0)
+    return jax.vmap(fn, axes)(*args), jnp.asarray(idx, jnp.int32)[chosen], dropped
+
+
+def _gjk_budget(m: Model, key, idx: np.ndarray) -> tuple[int, int]:
+    """How many of a GJK/EPA group's pairs ``_cull`` runs GJK on, and EPA (``gjk_slots``, or MJX's
+    ``max_geom_pairs`` if fewer)."""
+    k1, k2 = gjk_slots(idx.size)
+    if capped(m, key):
+        k1 = min(k1, m.max_geom_pairs)
+        k2 = min(k2, k1)
+    return k1, k2
+
+
+def budgeted(m: Model) -> bool:
+    """Whether some group's budget can drop pairs (``_cull``, ``_broadphase``): a GJK/EPA group
+    with more pairs than its EPA slots, or a ``compacted`` group."""
+    return any(
+        (is_gjk(key) and _gjk_budget(m, key, idx)[1] < idx.size) or compacted(m, key, idx)
+        for key, idx in pair_groups(m)
+    )
 
 
 def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes: tuple):
@@ -257,12 +278,12 @@ def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes:
        margin apart gets no contact;
     3. EPA and the multi-contact search for the kept pairs, only when some pair is within its
        margin (``lax.cond``: one env skips the stage, a vmapped batch runs it if any env needs it).
-    """
+
+    Also returns how many pairs whose spheres overlap it dropped: left untested (stage 1), or
+    found within the margin but left unsolved (stage 2)."""
     overlap = _overlap(m, d, idx)
-    k1, k2 = gjk_slots(idx.size)
-    if capped(m, key):
-        k1 = min(k1, m.max_geom_pairs)
-        k2 = min(k2, k1)
+    reached = jnp.sum(overlap >= 0)  # pairs MuJoCo's bounding test passes
+    k1, k2 = _gjk_budget(m, key, idx)
     chosen = jnp.arange(idx.size)
     if k1 < idx.size:
         overlap, chosen, args = _keep(k1, overlap, args, axes)
@@ -280,7 +301,9 @@ def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes:
     solve = lambda a: jax.vmap(fn, axes)(*a)  # noqa: E731
     dist, pos, normal, tangent = jax.lax.cond(jnp.any(near), solve, lambda a: far, args)
     dist = jnp.where(near[:, None], dist, prim._FAR)
-    return _spread(idx.size, chosen, (dist, pos, normal, tangent))
+    # the overlapping pairs dropped before EPA: those GJK found apart are not dropped contacts
+    dropped = reached - jnp.sum(near) - jnp.sum((overlap >= 0) & (sep >= margin))
+    return _spread(idx.size, chosen, (dist, pos, normal, tangent)), dropped
 
 
 def _window(m: Model, idx: np.ndarray) -> tuple[int, int]:
@@ -433,8 +456,9 @@ def make_frame(normal: jax.Array, tangent: jax.Array) -> jax.Array:
 
 def collision(m: Model, d: Data) -> Data:
     """Candidate contacts of every pair: ``contact_dist``, ``contact_pos``, ``contact_frame`` and
-    ``contact_pair``."""
+    ``contact_pair``; ``contact_overflow``: the pairs the budgets dropped (``Data``)."""
     dists, poss, normals, tangents, pairs = [], [], [], [], []
+    overflow = jnp.zeros((), jnp.int32)
     for key, idx in pair_groups(m):
         convex = isinstance(key, Convex)
         fn = gjk.convex_pair(key.types1, key.types2, m.multiccd, key.program) if convex else SUPPORTED[key][0]
@@ -446,11 +470,14 @@ def collision(m: Model, d: Data) -> Data:
         count = candidates_per_pair(m, key, idx)
         pair = jnp.asarray(np.repeat(idx, count), jnp.int32)
         if is_gjk(key):  # bounding spheres and GJK first
-            dist, pos, normal, tangent = _cull(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
+            out, dropped = _cull(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
+            dist, pos, normal, tangent = out
+            overflow = overflow + dropped
         elif compacted(m, key, idx):
-            out, chosen = _broadphase(m, d, idx, fn, (*poses, *extra), (0,) * 6 + axes)
+            out, chosen, dropped = _broadphase(m, d, idx, fn, (*poses, *extra), (0,) * 6 + axes)
             dist, pos, normal, tangent = out
             pair = jnp.repeat(chosen, count)
+            overflow = overflow + dropped
         else:
             dist, pos, normal, tangent = jax.vmap(fn, (0,) * 6 + axes)(*poses, *extra)
         dists.append(dist.reshape(-1))
@@ -465,4 +492,5 @@ def collision(m: Model, d: Data) -> Data:
         contact_pos=jnp.concatenate(poss),
         contact_frame=make_frame(jnp.concatenate(normals), jnp.concatenate(tangents)),
         contact_pair=jnp.concatenate(pairs),
+        contact_overflow=overflow.astype(jnp.int32),
     )

@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from fastrl.physics import equality, tree
-from fastrl.physics.collision_driver import candidate_pairs, contact_layout
+from fastrl.physics.collision_driver import budgeted, candidate_pairs, contact_layout
 from fastrl.physics.jacobian import point_jacobian_masked, rotation_jacobian
 from fastrl.physics.math import matmul, matvec
 from fastrl.physics.types import Data, JointType, Model
@@ -103,6 +103,12 @@ def contact_groups(m: Model) -> list[tuple[int, np.ndarray, int]]:
         if sel.size:
             groups.append((dim, sel, min(sel.size, m.nconmax)))
     return groups
+
+
+def contact_budgeted(m: Model) -> bool:
+    """Whether a step can drop contacts (``Data.contact_overflow`` above 0): a collision group's
+    budget (``collision_driver.budgeted``) or fewer contact slots than candidates."""
+    return budgeted(m) or any(nslot < sel.size for _, sel, nslot in contact_groups(m))
 
 
 def contact_slots(m: Model) -> int:
@@ -389,7 +395,8 @@ def make_constraint(m: Model, d: Data) -> Data:
     """Assembles every constraint row (equality, friction loss, limits, contacts: MuJoCo's order).
 
     Fills ``efc_*``, ``contact_id`` (the candidate in each contact slot) and ``ncon`` (candidates
-    within their margin; the rows are MuJoCo's exactly while ``ncon <= nconmax``).
+    within their margin; the rows are MuJoCo's exactly while ``ncon <= nconmax``), and adds the
+    contacts within their margin that found no slot to ``contact_overflow``.
     """
     rows = _RowList(m, d)
     if m.eq_type.size:
@@ -407,5 +414,10 @@ def make_constraint(m: Model, d: Data) -> Data:
     )  # fmt: skip
     if ids:
         within = d.contact_dist < m.pair_margin[candidate_pairs(m, d)]
-        out = out.replace(contact_id=jnp.concatenate(ids), ncon=jnp.sum(within).astype(jnp.int32))
+        unslotted = sum(jnp.maximum(jnp.sum(within[sel]) - nslot, 0) for _, sel, nslot in contact_groups(m))
+        out = out.replace(
+            contact_id=jnp.concatenate(ids),
+            ncon=jnp.sum(within).astype(jnp.int32),
+            contact_overflow=(d.contact_overflow + unslotted).astype(jnp.int32),
+        )
     return out

@@ -831,7 +831,8 @@ def make_data(model: Model, qpos=None, qvel=None, ctrl=None, act=None) -> Data:
         qacc=z(nv), qacc_smooth=z(nv), contact_dist=z(ncon), contact_pos=z(ncon, 3),
         contact_frame=z(ncon, 3, 3), contact_pair=jnp.asarray(contact_layout(model), jnp.int32),
         ncon=jnp.zeros((), jnp.int32),
-        contact_id=jnp.zeros(nslot, jnp.int32), efc_J=z(nefc, nv), efc_pos=z(nefc), efc_aref=z(nefc),
-        efc_D=z(nefc), efc_force=z(nefc), qfrc_constraint=z(nv),
+        contact_id=jnp.zeros(nslot, jnp.int32), contact_overflow=jnp.zeros((), jnp.int32),
+        efc_J=z(nefc, nv), efc_pos=z(nefc), efc_aref=z(nefc), efc_D=z(nefc), efc_force=z(nefc),
+        qfrc_constraint=z(nv),
         diverged=jnp.zeros((), bool),
     )  # fmt: skip

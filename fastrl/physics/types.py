@@ -382,6 +382,11 @@ class Data:
                   collision_driver.compacted).  ncon () int32: how many are active (mjData.ncon)
                   contact_id (nslot,) int32: the candidate held by each contact slot (the
                   nconmax deepest, see constraint.py); only slots have constraint rows
+                  contact_overflow () int32: what the fixed budgets dropped this step (0: the
+                  contacts are MuJoCo's): pairs whose bounding spheres, grown by the margin,
+                  overlap but that a GJK group's budget left untested or unsolved
+                  (collision_driver.gjk_slots) or MJX's max_geom_pairs left out, plus contacts
+                  within their margin that found no slot (mjData's nconmax warning)
     Constraints:  efc_J (nefc,nv)  efc_pos (nefc,)  efc_aref (nefc,)  efc_D (nefc,) (= 1/R; 0 on
                   rows beyond their margin)  efc_force (nefc,)  qfrc_constraint (nv,); rows:
                   the equality constraints' (3 connect, 6 weld, 1 joint), one per friction-loss
@@ -437,6 +442,7 @@ class Data:
     contact_pair: jax.Array
     ncon: jax.Array
     contact_id: jax.Array
+    contact_overflow: jax.Array
     efc_J: jax.Array
     efc_pos: jax.Array
     efc_aref: jax.Array

@@ -76,7 +76,7 @@ def _unpack(packed: dict[str, Any], like: Any) -> Any:
 # Leaves that every env step overwrites before anything reads them: per-step diagnostics, and
 # the pair each candidate contact holds (written by collision, read by the constraint rows). A
 # checkpoint saved before an env or the engine gained or lost one still restores.
-_STEP_METRICS = (".env_state.metrics[", ".data.contact_pair")
+_STEP_METRICS = (".env_state.metrics[", ".data.contact_pair", ".data.contact_overflow")
 
 
 def _match_saved(target: dict[str, Any], saved: dict[str, Any] | None, where: Path) -> dict[str, Any]:

@@ -279,6 +279,7 @@ class _Progress:
       reached      per agent: where its evaluation return first reached train.stop_at_return
       diverged     per agent: its losses went non-finite in this invocation (never saved)
       start_chunk  the chunk this invocation started from
+      overflowed   whether this invocation has said that the contact budgets dropped contacts
     """
 
     chunk: int
@@ -290,6 +291,7 @@ class _Progress:
     start_chunk: int
     saved_wall: float = 0.0
     train_return: float = math.nan  # the latest chunk's in which an episode ended (not saved)
+    overflowed: bool = False  # (not saved)
 
     @classmethod
     def fresh(cls, n_agents: int) -> _Progress:
@@ -674,6 +676,12 @@ def _report_chunk(setup: _Setup, progress: _Progress, rows: list[dict], state, d
     progress.train_return = row.get("train/episode_return", progress.train_return)
     if setup.cfg.logger.progress and jax.process_index() == 0:
         print(_progress(row, setup.total_steps, progress.wall, progress.train_return), flush=True)
+    if row.get("env/contact_overflow", 0) > 0 and not progress.overflowed and jax.process_index() == 0:
+        progress.overflowed = True
+        print(f"[fastrl] warning: chunk {progress.chunk}: the scene's contact budgets dropped contacts "
+              f"(env/contact_overflow {row['env/contact_overflow']:.3g}, the mean over envs; "
+              "more contact slots: +env.options.nconmax=N; docs/physics.md)",
+              file=sys.stderr, flush=True)  # fmt: skip
 
 
 def _write_rows(setup: _Setup, rows: list[dict], outs: list[_Outputs]) -> dict:

@@ -54,6 +54,7 @@ body { display: flex; flex-direction: column; background: #e0e8f2; }
 #bar label { white-space: nowrap; }
 #slider { flex: 1; min-width: 80px; }
 #counter { font-variant-numeric: tabular-nums; white-space: nowrap; }
+#overflow { color: #c00; white-space: nowrap; }
 #title { opacity: 0.8; white-space: nowrap; overflow: hidden; text-overflow: ellipsis; max-width: 30%; }
 #view { flex: 1; width: 100%; min-height: 0; display: block; touch-action: none; }
 #help { position: absolute; bottom: 4px; left: 8px; color: #556; font-size: 11px; pointer-events: none; }
@@ -72,6 +73,7 @@ _BODY = """
   <span id="counter">frame <span id="frame">0</span> / <span id="nframe">0</span>
     &middot; <span id="time">0.00 s</span></span>
   <label><input id="follow" type="checkbox" checked> follow</label>
+  <span id="overflow" title="contacts the scene's fixed budgets dropped in this step"></span>
   <span id="title"></span>
 </div>
 <canvas id="view"></canvas>
@@ -102,6 +104,7 @@ def write_html(
     title: str = "",
     asset: str | Path | None = None,
     markers: np.ndarray | None = None,
+    overflow: np.ndarray | None = None,
 ) -> Path:
     """Writes a self-contained HTML viewer of a trajectory of ``env``.
 
@@ -112,12 +115,14 @@ def write_html(
       title: a line shown in the page's control bar (default: the env's name).
       asset: the env's MJCF file, if it was built with a non-default ``asset=``.
       markers: (T, M, 3) goal positions per frame, drawn as red spheres (``env.markers``).
+      overflow: (T,) contacts the scene's budgets dropped per frame (the env's
+        ``contact_overflow`` metric), shown in the control bar where above 0.
     Returns:
       The path written.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(page(build_scene(env, qpos, title, asset, markers)), encoding="utf-8")
+    path.write_text(page(build_scene(env, qpos, title, asset, markers, overflow)), encoding="utf-8")
     return path
 
 
@@ -139,9 +144,10 @@ def make_run_writer(env, act: Callable, title: str = "", batched: bool = False, 
     def write(run_dir: str | Path, chunk: int, params, key: jax.Array) -> Path:
         if batched:
             params = jax.tree.map(lambda x: x[0], params)
-        qpos, alive, marks = jax.device_get(rollout(params, key))
+        qpos, alive, marks, dropped = jax.device_get(rollout(params, key))
         out = Path(run_dir) / "viewer" / f"chunk_{chunk:06d}.html"
-        path = write_html(env, qpos[alive], out, f"{title or env.name}, chunk {chunk}", markers=marks[alive])
+        name = f"{title or env.name}, chunk {chunk}"
+        path = write_html(env, qpos[alive], out, name, markers=marks[alive], overflow=dropped[alive])
         shutil.copyfile(path, Path(run_dir) / "viewer.html")
         return path
 

@@ -125,7 +125,12 @@ def _framing(m: mujoco.MjModel, root_pos: np.ndarray, geom_xpos: np.ndarray) -> 
 
 
 def build_scene(
-    env, qpos: np.ndarray, title: str = "", asset: str | Path | None = None, markers: np.ndarray | None = None
+    env,
+    qpos: np.ndarray,
+    title: str = "",
+    asset: str | Path | None = None,
+    markers: np.ndarray | None = None,
+    overflow: np.ndarray | None = None,
 ) -> dict:
     """The JSON-ready scene of a trajectory of ``env``: static geoms plus per-frame body poses.
 
@@ -135,16 +140,21 @@ def build_scene(
       title: a line shown above the view.
       asset: the env's MJCF file when it was built with a non-default ``asset=``.
       markers: (T, M, 3) goal positions per frame (None: none).
+      overflow: (T,) contacts the scene's budgets dropped per frame (None: none).
     Returns:
       A dict: ``geoms`` (type, size, rgba, body, pos, quat, mesh), ``meshes``, ``nbody``,
       ``nframe``, ``dt``, ``root`` (body to follow), ``radius``, ``ground``, ``has_plane`` and
       ``frames``, the (T, nbody, 7) poses ``[x, y, z, qw, qx, qy, qz]`` flattened, and
-      ``nmarker`` with ``markers``, the (T, M, 3) goal positions flattened.
+      ``nmarker`` with ``markers``, the (T, M, 3) goal positions flattened, and ``overflow``, the
+      (T,) dropped contacts (empty when none were given).
     """
     qpos = np.asarray(qpos)
     markers = np.zeros((len(qpos), 0, 3)) if markers is None else np.asarray(markers, float)
     if markers.ndim != 3 or markers.shape[0] != len(qpos) or markers.shape[2] != 3:
         raise ValueError(f"markers has shape {markers.shape}; expected ({len(qpos)}, M, 3)")
+    overflow = np.zeros(0) if overflow is None else np.asarray(overflow)
+    if overflow.size and overflow.shape != (len(qpos),):
+        raise ValueError(f"overflow has shape {overflow.shape}; expected ({len(qpos)},)")
     if qpos.ndim != 2 or qpos.shape[1] != env.model.nq or len(qpos) == 0:
         raise ValueError(f"qpos has shape {qpos.shape}; expected (T, {env.model.nq}) with T >= 1")
     m = load_mj_model(env, asset)
@@ -167,6 +177,7 @@ def build_scene(
         "frames": _rounded(frames.reshape(-1)),
         "nmarker": int(markers.shape[1]),
         "markers": _rounded(markers.reshape(-1)),
+        "overflow": [int(round(float(x))) for x in overflow],
     }
 
 

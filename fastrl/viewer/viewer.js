@@ -392,6 +392,8 @@
     for (let i = 0; markerItem && i < scene.nmarker; i++) {
       drawItem(markerItem, poseMatrix(markerPos(frame, i), [1, 0, 0, 0]), markerItem.g.rgba, 0);
     }
+    const dropped = scene.overflow && scene.overflow.length ? scene.overflow[frame] : 0;
+    $("overflow").textContent = dropped > 0 ? "contacts dropped: " + dropped : "";
     $("frame").textContent = String(frame);
     $("time").textContent = (frame * scene.dt).toFixed(2) + " s";
     $("slider").value = String(frame);

@@ -159,6 +159,21 @@ def test_ant_can_leave_contact_forces_out_of_its_observation():
     assert envs.make("ant_goal", include_cfrc_ext_in_observation=False).observation_size == 31
 
 
+def test_dropped_contacts_are_an_env_metric():
+    """An env whose scene can drop contacts (here the Ant with one contact slot) reports how many
+    it dropped as the ``contact_overflow`` metric; a scene with no contacts has no such metric."""
+    assert "contact_overflow" not in envs.make("inverted_pendulum").metric_names()
+    ant = envs.make("ant", nconmax=1)
+    assert ant.metric_names()[-1] == "contact_overflow"
+
+    def fall(state, _):  # the Ant dropped from its start height lands on several feet
+        state = ant.step(state, jnp.zeros(ant.action_size))
+        return state, state.metrics["contact_overflow"]
+
+    _, dropped = jax.lax.scan(fall, ant.reset(jax.random.PRNGKey(0)), None, length=30)
+    assert dropped[0] == 0 and dropped.max() >= 1
+
+
 _SPLIT_SCRIPT = """
 import json, numpy as np, jax
 from fastrl import envs

@@ -459,7 +459,7 @@ def test_evaluator_and_rollout_score_the_env_for_evaluation():
     act = lambda params, obs: jnp.zeros(obs.shape[:-1] + (1,))  # noqa: E731
     _, lengths, _ = agents.make_evaluator(env, act, 2)(None, jax.random.PRNGKey(0))
     np.testing.assert_array_equal(np.asarray(lengths), 3)
-    qpos, _, _ = agents.make_rollout(env, act)(None, jax.random.PRNGKey(0))
+    qpos, _, _, _ = agents.make_rollout(env, act)(None, jax.random.PRNGKey(0))
     assert qpos.shape[0] == 3 + 1
 
 

@@ -55,7 +55,8 @@ def test_slots_hold_the_contacts_mujoco_makes_rows_for(x64):
 
 
 def test_too_few_slots_keep_the_deepest_contacts(x64):
-    """With 2 slots for a box lying flat (4 corner contacts), the slots hold the two deepest."""
+    """With 2 slots for a box lying flat (4 corner contacts), the slots hold the two deepest, and
+    the two left out are counted (``contact_overflow``)."""
     xml = (
         '<mujoco><worldbody><geom type="plane" size="5 5 .1"/>'
         '<body pos="0 0 0.09" euler="3 0 0"><freejoint/><geom type="box" size=".2 .1 .1"/></body>'
@@ -67,6 +68,36 @@ def test_too_few_slots_keep_the_deepest_contacts(x64):
     assert int(d.ncon) == 4
     assert sorted(np.asarray(d.contact_id).tolist()) == sorted(np.argsort(dist)[:2].tolist())
     assert d.efc_J.shape[0] == 2 * 4
+    assert int(d.contact_overflow) == 2 and physics.contact_budgeted(m)
+    roomy = physics.load_mjcf(xml, nconmax=4)
+    assert int(jax.jit(lambda d: fwd.forward(roomy, d))(physics.make_data(roomy)).contact_overflow) == 0
+    assert not physics.contact_budgeted(roomy)
+
+
+def test_gjk_budget_overflow_is_counted():
+    """A box touching 40 small mesh cubes at once: GJK runs on 32 of the 40 pairs and EPA on 16
+    (``collision_driver.gjk_slots``), so 24 touching pairs get no contact, and the step says so;
+    with the cubes moved apart nothing is dropped."""
+    cube = " ".join(f"{x} {y} {z}" for x in (-0.02, 0.02) for y in (-0.02, 0.02) for z in (-0.02, 0.02))
+    spots = [
+        (0.1 * np.cos(a), 0.1 * np.sin(a), 0.05 * (k % 3 - 1)) for k, a in enumerate(np.linspace(0, 6, 40))
+    ]
+    cubes = "".join(
+        f'<geom name="c{k}" type="mesh" mesh="cube" pos="{x} {y} {z}"/>' for k, (x, y, z) in enumerate(spots)
+    )
+    pairs = "".join(f'<pair geom1="box" geom2="c{k}"/>' for k in range(40))
+    xml = (
+        f'<mujoco><asset><mesh name="cube" vertex="{cube}"/></asset><worldbody>'
+        '<body><freejoint/><geom name="box" type="box" size=".11 .11 .1" contype="0" conaffinity="0"/></body>'
+        f'<body pos="0 0 0"><freejoint/>{cubes}</body></worldbody><contact>{pairs}</contact></mujoco>'
+    )
+    m = physics.load_mjcf(xml, nconmax=400)
+    assert collision_driver.gjk_slots(40) == (32, 16)
+    forward = jax.jit(lambda q: fwd.forward(m, physics.make_data(m, qpos=q)))
+    d = forward(physics.make_data(m).qpos)
+    assert int(d.contact_overflow) == 40 - 16
+    apart = physics.make_data(m).qpos.at[9].add(5.0)  # the cubes' body 5 m away
+    assert int(forward(apart).contact_overflow) == 0
 
 
 def test_converged_newton_iterate_stays_put(x64):

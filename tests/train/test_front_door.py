@@ -243,6 +243,17 @@ def test_a_diverging_run_is_reported_and_never_saved(tmp_path, capsys):
     assert not (tmp_path / "checkpoints").exists() or not any((tmp_path / "checkpoints").iterdir())
 
 
+def test_dropped_contacts_are_logged_and_warned_about_once(tmp_path, capsys):
+    """A Hopper with one contact slot drops contacts once it is down on its foot: the run logs
+    ``env/contact_overflow`` and warns once, naming the option that gives more slots."""
+    overrides = ["env=hopper", "debug=quick", "logger=quiet", f"run_dir={tmp_path}", "+env.options.nconmax=1"]
+    run(compose_cfg([*overrides, "env.episode_length=200"]))
+    err = capsys.readouterr().err
+    assert err.count("the scene's contact budgets dropped contacts") == 1
+    assert "+env.options.nconmax=N" in err
+    assert max(float(r["env/contact_overflow"]) for r in _csv_rows(tmp_path)) > 0
+
+
 def test_collapse_watch_flags_a_return_that_falls_back():
     from fastrl.training.runner import CollapseWatch
 
