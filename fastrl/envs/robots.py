@@ -845,9 +845,9 @@ class LeapCubeReorient(RobotTask):
     """
 
     name = "leap_cube_reorient"
-    # split over 2 CPU devices the step runs at 0.78x of one device's speed (robot_throughput.md;
-    # 0.37x before its capped pairs were compacted): the dense Newton Hessian is factorised in
-    # plain XLA there (go1_joystick, one Newton iteration per step, runs 1.6x faster split)
+    # split over 2 CPU devices the step runs slower than on one (robot_throughput.md): the dense
+    # Newton Hessian is factorised in plain XLA there (go1_joystick, one Newton iteration per
+    # step, runs faster split)
     splits_over_devices = False
     scene = "playground/manipulation/leap_hand/scene_mjx_cube"
     default_frame_skip = 5
