@@ -24,8 +24,10 @@ __all__ = [
     "IDENTITY_TRAIN_KEYS",
     "LoggerConfig",
     "RunConfig",
+    "SECTIONS",
     "TrainConfig",
     "build",
+    "defaults",
     "identity_diff",
 ]
 
@@ -218,7 +220,7 @@ class EnvConfig:
       options             env-specific constructor options (e.g. hand_reorient's ``target``)
     """
 
-    name: str = "ant"
+    name: str
     episode_length: int | None = None
     frame_skip: int | None = None
     reward_weights: dict = dataclasses.field(default_factory=dict)
@@ -256,7 +258,10 @@ class RunConfig:
     logger: LoggerConfig
     checkpoint: CheckpointConfig
     seed: int = 0
-    # A run folder whose learned weights a new run starts from (``init_from``); None: fresh.
+    # A run folder whose newest learned weights a new run starts from (``init_from``: policy,
+    # value function and observation statistics; optimiser, envs and counters fresh), e.g.
+    # go1_joystick_rough from a go1_joystick run. Same algo, network and observation size
+    # needed; ignored when resuming. None: a fresh start.
     init_from: str | None = None
 
     @classmethod
@@ -297,6 +302,28 @@ class RunConfig:
             "init_from": self.init_from,
         }
         return _jsonable(out)
+
+
+# The config dataclass of each section of the composed config; ``algo`` has one per learner
+# (``agents.config_class``). Their defaults are the only ones: conf/ files hold what differs.
+SECTIONS = {
+    "env": EnvConfig,
+    "network": NetworkConfig,
+    "train": TrainConfig,
+    "logger": LoggerConfig,
+    "checkpoint": CheckpointConfig,
+}
+
+
+def defaults(cls: type) -> dict:
+    """The defaults of config dataclass ``cls`` as a JSON-able dict (fields without one left out)."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.default is not dataclasses.MISSING:
+            out[f.name] = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            out[f.name] = f.default_factory()
+    return _jsonable(out)
 
 
 def _jsonable(x):

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import hydra
 import jax
+from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
@@ -28,7 +29,7 @@ from omegaconf.errors import OmegaConfBaseException
 from fastrl import agents, compile_cache, envs, xla_flags
 from fastrl.training import files, runner
 from fastrl.training.checkpoint import CHECKPOINT_DIR, CheckpointError
-from fastrl.training.config import ConfigError, RunConfig, identity_diff
+from fastrl.training.config import SECTIONS, ConfigError, RunConfig, defaults, identity_diff
 from fastrl.training.files import WriteError
 
 __all__ = [
@@ -40,11 +41,32 @@ __all__ = [
     "init_distributed",
     "main",
     "merge_overrides",
+    "register_defaults",
     "resumed_config",
     "run",
 ]
 
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+
+
+def register_defaults() -> None:
+    """Stores the config dataclasses' defaults in Hydra's ConfigStore, as the configs that
+    conf/ extends: ``dataclass/<section>`` (``dataclass/run``: ``seed``, ``init_from``) and
+    ``dataclass/algo/<learner>``. A default is written once, in its dataclass; a conf/ file
+    holds only what differs, and every key stays overridable as ``section.key=value``."""
+    store = ConfigStore.instance()
+    store.store(group="dataclass", name="run", node=defaults(RunConfig))
+    named = {"name": "???"}  # Hydra's mandatory value: the file that extends it names the env or learner
+    for section, cls in SECTIONS.items():
+        node = {**named, **defaults(cls)} if section == "env" else defaults(cls)
+        store.store(group="dataclass", name=section, node=node)
+    for name in agents.ALGORITHMS:
+        store.store(group="dataclass/algo", name=name, node={**named, **defaults(agents.config_class(name))})
+
+
+# Done on import, as conf/ cannot be composed without it (importing CONF_DIR brings it along).
+register_defaults()
+
 # Command-line keys that say how to start, not what the run is: never part of a run's record.
 _LAUNCH_KEYS = ("resume", "resume_step", "run_dir", "distributed")
 OVERRIDES_FILE = ".hydra/overrides.yaml"
