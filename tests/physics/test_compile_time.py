@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl import physics
+from fastrl.physics import collision_gjk as gjk
 from fastrl.physics import smooth
 
 
@@ -101,3 +102,31 @@ def test_wide_deep_tree_step_compiles_quickly():
     for _ in range(20):
         d = compiled(d)
     assert not bool(d.diverged) and np.all(np.isfinite(np.asarray(d.qpos)))
+
+
+def _optimised_instructions(fn, *args) -> int:
+    compiled = jax.jit(fn).lower(*args).compile()
+    return sum(1 for line in compiled.as_text().splitlines() if " = " in line)
+
+
+def test_multi_contact_search_compiles_gjk_epa_once():
+    """A GJK/EPA pair's multi-contact search (the plain contact, then four turned ones) is one
+    loop over the five poses, so its program is little more than one contact's (measured for a
+    box against a mesh: 3.1k against 2.6k optimised instructions; with the turned contacts
+    compiled apart from the plain one, 6.2k)."""
+    n, verts = 8, 24
+    eye = jnp.tile(jnp.eye(3), (n, 1, 1))
+    hull = jnp.asarray(np.random.default_rng(0).normal(size=(n, verts, 3)))
+    poses = (jnp.zeros((n, 3)), eye, jnp.ones((n, 3)), jnp.ones((n, 3)), eye, jnp.ones((n, 3)))
+    box, mesh = int(physics.types.GeomType.BOX), int(physics.types.GeomType.MESH)
+    one = _optimised_instructions(jax.vmap(gjk.single_contact(box, mesh)), *poses, jnp.zeros((n, 1, 3)), hull)
+    search = _optimised_instructions(
+        jax.vmap(gjk.convex_pair(box, mesh)),
+        *poses,
+        jnp.zeros((n, 1, 3)),
+        hull,
+        None,
+        jnp.zeros(n),
+        jnp.ones(n),
+    )
+    assert search < 1.5 * one, (search, one)
