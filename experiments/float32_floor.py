@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 
 from experiments import results
-from fastrl import robot_scenes
+from fastrl.envs import robot_scenes
 
 BAR_MM = 10.0
 

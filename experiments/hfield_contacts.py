@@ -33,7 +33,8 @@ import numpy as np
 
 from experiments import results
 from experiments import robot_coverage as coverage
-from fastrl import physics, robot_scenes
+from fastrl import physics
+from fastrl.envs import robot_scenes
 from fastrl.physics import collision_driver
 
 SCENES = (

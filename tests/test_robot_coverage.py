@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from experiments import robot_coverage
-from fastrl import robot_scenes
+from fastrl.envs import robot_scenes
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCENES = 41  # the count in envpool-assets 0.4.0; a new wheel version that changes it should say so

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl import robot_scenes
+from fastrl.envs import robot_scenes
 from fastrl.envs.base import Env
 from fastrl.physics.collision_driver import contact_layout, dynamic_candidates
 from fastrl.physics.math import cross, quat_conj, quat_integrate, quat_mul, quat_to_mat
