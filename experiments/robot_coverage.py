@@ -485,6 +485,7 @@ def summarize(rows: list[SceneResult]) -> dict:
         "loads": sum(r.status == "loads" for r in rows),
         "tracked": sum(bool(r.qpos_err) for r in rows),
         "tracks": {v: sum(r.tracks(v) for r in rows) for v in VARIANTS},
+        "compared": {v: sum(v in (r.qpos_err or {}) for r in rows) for v in VARIANTS},
         "random_finite": sum(bool(r.random_finite) for r in rows),
         "random_mujoco_unstable": sum(r.random_mujoco_unstable is not None for r in rows),
         "root_f32_within_1cm": sum(r.root_err_f32 is not None and r.root_err_f32 <= ROOT_TOL for r in rows),
@@ -505,7 +506,12 @@ def _fmt(x: float | None, spec: str) -> str:
 
 def _counts(s: dict, meta: dict) -> str:
     """The page's first bullet: scenes, loads, tracking, float32 roots and random controls."""
-    tracks = "; ".join(f"{s['tracks'][v]} {v}" for v in meta["variants"])
+
+    def of(v):  # a variant that later runs of some scenes left out is counted over those it compared
+        compared = s.get("compared", {}).get(v, s["tracked"])
+        return f" (of {compared} compared)" if compared < s["tracked"] else ""
+
+    tracks = "; ".join(f"{s['tracks'][v]} {v}{of(v)}" for v in meta["variants"])
     return (
         f"- **{s['scenes']} scenes; {s['loads']} load"
         + (
