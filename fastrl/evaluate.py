@@ -19,8 +19,9 @@ import sys
 import jax
 import numpy as np
 
-from fastrl import agents, compile_cache, reference, viewer, xla_flags
+from fastrl import agents, reference, viewer
 from fastrl.agents.evaluation import make_rollout
+from fastrl.runtime import compile_cache, xla_flags
 from fastrl.training.checkpoint import CheckpointError, quiet_library_logs
 from fastrl.training.policy import load_run
 

@@ -131,17 +131,22 @@ def test_importing_fastrl_leaves_the_environment_untouched():
 
 
 # One path per module: the training layer's modules are imported from ``fastrl.training`` only,
-# the robot scenes' locator from ``fastrl.envs``. ``fastrl.train`` is the command
-# (``python -m fastrl.train``), never imported by code.
+# the robot scenes' locator from ``fastrl.envs``, devices, XLA flags and the compile cache from
+# ``fastrl.runtime``. ``fastrl.train`` is the command (``python -m fastrl.train``), never imported
+# by code.
 REMOVED_MODULES = {
     f"fastrl.{name}"
-    for name in ("runner", "checkpoint", "config", "policy", "scale", "train", "robot_scenes")
+    for name in (
+        *("runner", "checkpoint", "config", "policy", "scale", "train", "robot_scenes"),
+        *("devices", "xla_flags", "compile_cache"),
+    )
 }
 ENTRY_POINT = PACKAGE / "train.py"
 # A dotted name through a removed module, as mock.patch strings, docstrings and scripts spell it;
 # ``fastrl.train`` followed by a dot and a name reaches into the module, alone it names the command.
 REMOVED_DOTTED = re.compile(
-    r"\bfastrl\.(?:(?:runner|checkpoint|config|policy|scale|robot_scenes)\b|train\.\w+)"
+    r"\bfastrl\.(?:(?:runner|checkpoint|config|policy|scale|robot_scenes|devices|xla_flags|compile_cache)\b"
+    r"|train\.\w+)"
 )
 
 
@@ -239,10 +244,9 @@ def _removed_names(path: Path) -> list[str]:
 
 
 def test_nothing_imports_the_removed_module_paths():
-    """No file in fastrl/, tests/ or experiments/ imports ``fastrl.{runner,checkpoint,config,
-    policy,scale,train,robot_scenes}`` or names a member through one of them (a mock.patch string
-    through a path that no longer holds the code would patch nothing), and the docs and configs
-    name none either."""
+    """No file in fastrl/, tests/ or experiments/ imports a removed module path
+    (``REMOVED_MODULES``) or names a member through one (a mock.patch string through a path that
+    no longer holds the code would patch nothing), and the docs and configs name none either."""
     paths = [*_files("fastrl", "*.py"), *_files("tests", "*.py"), *_files("experiments", "*.py")]
     paths += [ROOT / "README.md", *_files("docs", "*.md"), *_files("conf", "*.yaml")]
     found = [where for path in paths for where in _removed_names(path)]

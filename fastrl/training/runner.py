@@ -44,9 +44,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh
 
-from fastrl import agents, compile_cache, devices, reference, viewer
+from fastrl import agents, reference, viewer
 from fastrl.agents.base import Learner
-from fastrl.devices import to_host
+from fastrl.runtime import compile_cache, devices
+from fastrl.runtime.devices import to_host
 from fastrl.training import files, policy, scale
 from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError, quiet_library_logs
 from fastrl.training.config import RunConfig

@@ -26,7 +26,8 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from fastrl import agents, compile_cache, envs, xla_flags
+from fastrl import agents, envs
+from fastrl.runtime import compile_cache, xla_flags
 from fastrl.training import files, runner
 from fastrl.training.checkpoint import CHECKPOINT_DIR, CheckpointError
 from fastrl.training.config import SECTIONS, ConfigError, RunConfig, defaults, identity_diff

@@ -362,7 +362,7 @@ def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
 def test_cli_xla_flags_keep_what_the_user_set(monkeypatch):
     from jax._src import xla_bridge
 
-    from fastrl import xla_flags
+    from fastrl.runtime import xla_flags
     from fastrl.training import train
 
     ppo = typed(["env=inverted_pendulum", "algo=ppo", "algo.num_envs=6", "algo.unroll_length=4"])
@@ -400,7 +400,7 @@ def test_cli_xla_flags_per_learner(monkeypatch):
     user's own."""
     from jax._src import xla_bridge
 
-    from fastrl import xla_flags
+    from fastrl.runtime import xla_flags
     from fastrl.training import train
 
     sac = typed(["env=inverted_pendulum", "algo=sac", "algo.num_envs=4"])

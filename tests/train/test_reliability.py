@@ -276,7 +276,7 @@ def test_the_cached_program_key_follows_what_builds_the_program(tmp_path):
     """The key of a kept traced program changes with the configuration, the model and the state's
     shapes, not with memory addresses in reprs or the state's values; an entry that cannot be
     read is traced again."""
-    from fastrl import compile_cache
+    from fastrl.runtime import compile_cache
 
     model = envs.make("inverted_pendulum").model
     state = {"params": jnp.zeros((3, 2)), "step": jnp.int32(0)}
