@@ -44,10 +44,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh
 
-from fastrl import agents, reference, viewer
+from fastrl import agents
 from fastrl.agents.base import Learner
 from fastrl.runtime import compile_cache, devices
 from fastrl.runtime.devices import to_host
+from fastrl.tools import reference, viewer
 from fastrl.training import files, policy, scale
 from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError, quiet_library_logs
 from fastrl.training.config import RunConfig

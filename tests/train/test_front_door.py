@@ -323,17 +323,17 @@ def _csv_rows(run_dir):
 
 def test_load_policy_and_evaluate_cli(tmp_path, capsys):
     import fastrl
-    from fastrl import evaluate
+    from fastrl.tools import evaluate
 
     run(compose_cfg([*QUICK, f"run_dir={tmp_path}"]))
     policy = fastrl.load_policy(tmp_path)
     action = jax.jit(policy)(jnp.zeros((3, 4)))
     assert action.shape == (3, 1) and np.all(np.abs(np.asarray(action)) <= 3.0)
-    assert evaluate.main([str(tmp_path), "--episodes", "4", "--export", str(tmp_path / "ep.npz")]) == 0
+    assert evaluate.run([str(tmp_path), "--episodes", "4", "--export", str(tmp_path / "ep.npz")]) == 0
     out = capsys.readouterr().out
     assert "return" in out and "+-" in out
     assert np.load(tmp_path / "ep.npz")["qpos"].shape[1] == 2
-    assert evaluate.main([str(tmp_path / "nothing")]) == 2
+    assert evaluate.run([str(tmp_path / "nothing")]) == 2
 
 
 def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
