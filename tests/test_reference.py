@@ -16,8 +16,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from fastrl import envs
+from fastrl.cli.train import CONF_DIR, run
 from fastrl.tools import evaluate, reference
-from fastrl.training.train import CONF_DIR, run
 
 
 def _train(tmp_path, overrides):

@@ -108,7 +108,7 @@ def test_video_errors_are_clear(tmp_path):
 
 
 def test_training_run_writes_viewer_pages_and_evaluate_cli(tmp_path, capsys):
-    from fastrl.training.train import run
+    from fastrl.cli.train import run
     from tests.train.test_front_door import QUICK, compose_cfg
 
     run_dir = tmp_path / "run"

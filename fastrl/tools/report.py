@@ -18,7 +18,7 @@ from typing import NoReturn
 
 import numpy as np
 
-from fastrl.training.curve import read_metrics, save_png
+from fastrl.tools.curve import read_metrics, save_png
 
 _IGNORED = ("seed", "logger", "checkpoint")
 

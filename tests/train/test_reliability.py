@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 
 from fastrl import envs, physics
+from fastrl.cli.train import run
 from fastrl.tools import evaluate
 from fastrl.training.checkpoint import CheckpointError
 from fastrl.training.config import ConfigError
 from fastrl.training.policy import load_policy, load_run
 from fastrl.training.runner import RunDirError, RunDirLock
-from fastrl.training.train import run
 
 from .test_front_door import QUICK, compose_cfg
 

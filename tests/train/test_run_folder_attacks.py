@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fastrl.cli.train import resumed_config, run
 from fastrl.training import runner
 from fastrl.training.checkpoint import Checkpointer
 from fastrl.training.config import ConfigError
 from fastrl.training.runner import RunDirError
-from fastrl.training.train import resumed_config, run
 
 from .test_front_door import QUICK, QUICK_RESUME, _weights_of, compose_cfg, typed
 from .test_reliability import QUICK_CLI, _env

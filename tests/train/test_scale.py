@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fastrl import agents
-from fastrl.tools import report
+from fastrl.tools import callbacks, report
 from fastrl.training import runner, scale
 from fastrl.training.checkpoint import CheckpointError
 from fastrl.training.config import ConfigError
@@ -83,7 +83,7 @@ def test_batch_run_logs_each_agent_and_resumes_bit_exactly(tmp_path):
         "train.vmap_sweep={entropy_cost:[0.0,0.01]}",
     ]
     cfg = typed(overrides)
-    full = runner.train(cfg, tmp_path / "full")
+    full = runner.train(cfg, tmp_path / "full", callbacks=callbacks.standard())  # the curves among them
     assert full["status"] == "done" and len(full["agents"]) == 4
     agent_dirs = sorted((tmp_path / "full" / "agents").iterdir())
     assert [d.name for d in agent_dirs] == full["agents"]
