@@ -12,8 +12,8 @@ per core, as ``python -m fastrl.train`` runs PPO), in a child process started wi
 ``XLA_FLAGS=--xla_force_host_platform_device_count=2``. Peers run from
 ``.venv-peers`` (``bash experiments/peers/setup_peers.sh``): EnvPool ``Ant-v4`` with 2 threads and
 Brax's ``ant`` with its mjx, generalized, spring and positional backends at their own defaults.
-fastrl runs with the XLA:CPU flags of ``fastrl.use_recommended_xla_flags()`` (``fastrl/xla_flags.py``);
-Brax with the user's ``XLA_FLAGS`` (its own defaults). Writes
+fastrl runs with the XLA:CPU flags of ``fastrl.use_recommended_xla_flags()``
+(``fastrl/runtime/xla_flags.py``); Brax with the user's ``XLA_FLAGS`` (its own defaults). Writes
 ``experiments/results/contacts_throughput.{md,json,png}``.
 """
 
@@ -34,7 +34,7 @@ import numpy as np
 import fastrl
 from experiments import results
 from fastrl import envs, physics
-from fastrl.xla_flags import peer_environ
+from fastrl.runtime.xla_flags import peer_environ
 
 ROOT = results.ROOT
 ANT = ROOT / "fastrl" / "assets" / "ant.xml"

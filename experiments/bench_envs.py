@@ -20,7 +20,8 @@
 
 The 2-device child reports each row on stderr as it finishes (the whole run takes 45+ min).
 
-fastrl runs with the XLA:CPU flags of ``fastrl.use_recommended_xla_flags()`` (``fastrl/xla_flags.py``).
+fastrl runs with the XLA:CPU flags of ``fastrl.use_recommended_xla_flags()``
+(``fastrl/runtime/xla_flags.py``).
 Writes ``experiments/results/env_throughput.{json,md}`` (``--name`` another stem, e.g. for a run
 of one env).
 """

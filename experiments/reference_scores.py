@@ -8,7 +8,7 @@ For each run: fastrl's own evaluation at the run's physics settings (what traini
 ``python -m fastrl.evaluate`` print), fastrl at the asset's own settings when the run overrides
 them (the Ant PPO run trains with Euler and 5 solver iterations; the asset is RK4), and the
 reference: Gymnasium's own v5 env in MuJoCo C for the standard suite, the env's MJCF in MuJoCo C
-with fastrl's observation and reward for fastrl's own scenes (``fastrl.reference``). Every
+with fastrl's observation and reward for fastrl's own scenes (``fastrl.tools.reference``). Every
 score runs the same deterministic policy over the same episodes, each from the same initial
 state (evaluation seed 0). Writes ``results/reference_scores.{md,json}``.
 """
@@ -23,7 +23,7 @@ import time
 
 import fastrl
 from experiments import results
-from fastrl import reference
+from fastrl.tools import reference
 from fastrl.training.policy import load_run
 
 
@@ -100,7 +100,7 @@ def quick_run(tmp: pathlib.Path, env: str = "hopper") -> str:
     """A tiny PPO run (``debug=quick``) of ``env`` trained with Euler, in ``tmp``."""
     from hydra import compose, initialize_config_dir
 
-    from fastrl.training.train import CONF_DIR, run
+    from fastrl.cli.train import CONF_DIR, run
 
     overrides = [f"env={env}", "algo=ppo", "debug=quick", "logger=quiet", "env.integrator=euler"]
     with initialize_config_dir(config_dir=CONF_DIR, version_base=None):

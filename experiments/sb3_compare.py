@@ -20,7 +20,7 @@ inside it:
 
 Both sides are then scored the same way, outside the clock: each snapshot's deterministic policy
 runs ``--episodes`` episodes in Gymnasium's ``<Env>-v5`` (MuJoCo C, float64), the fastrl one
-through ``fastrl.load_policy`` and ``fastrl.reference.evaluate`` (Gymnasium built with the fastrl
+through ``fastrl.load_policy`` and ``fastrl.tools.reference.evaluate`` (Gymnasium built with the fastrl
 env's settings, which for these four are Gymnasium's defaults: SB3 trains on the same env
 keywords). Reported per env and learner: env steps in the budget, the return of the last
 snapshot, the best snapshot's return, and the time to the same return: the target is the lower
@@ -45,7 +45,7 @@ import time
 import numpy as np
 
 from experiments import results
-from fastrl.xla_flags import peer_environ
+from fastrl.runtime.xla_flags import peer_environ
 
 ROOT = results.ROOT
 PEERS = ROOT / ".venv-peers" / "bin" / "python"
@@ -57,8 +57,8 @@ LABELS = {"fastrl_ppo": "fastrl PPO", "sb3_ppo": "SB3 PPO", "sb3_sac": "SB3 SAC"
 
 def gymnasium_task(env_name: str) -> tuple[str, dict]:
     """The Gymnasium id and ``gymnasium.make`` keywords of fastrl's ``env_name`` as trained."""
-    from fastrl import reference
     from fastrl.envs import registry
+    from fastrl.tools import reference
 
     env = registry.make(env_name)
     return reference.GYMNASIUM[env.name].env_id, reference.gymnasium_kwargs(env)
@@ -98,7 +98,7 @@ def score_fastrl(snaps: list[dict], episodes: int, seed: int) -> None:
     """Each snapshot's Gymnasium returns (``snap["returns"]``), via ``load_policy``."""
     import jax
 
-    from fastrl import reference
+    from fastrl.tools import reference
     from fastrl.training.config import RunConfig
     from fastrl.training.policy import load_policy
 

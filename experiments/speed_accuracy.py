@@ -88,7 +88,7 @@ from experiments import results
 from experiments.shipped import shipped_setting
 from fastrl import envs, physics
 from fastrl.envs.base import ASSETS
-from fastrl.xla_flags import peer_environ
+from fastrl.runtime.xla_flags import peer_environ
 
 ROOT = results.ROOT
 MODELS = ("ant", "halfcheetah", "hopper", "humanoid", "humanoidstandup", "inverted_double_pendulum")

@@ -67,7 +67,7 @@ import time
 import numpy as np
 
 from experiments import results
-from fastrl.xla_flags import peer_environ
+from fastrl.runtime.xla_flags import peer_environ
 
 ROOT = results.ROOT
 PEERS = ROOT / ".venv-peers" / "bin" / "python"

@@ -32,7 +32,8 @@ import numpy as np
 import fastrl
 from experiments import results
 from experiments.reference_scores import quick_run
-from fastrl import envs, physics, reference
+from fastrl import envs, physics
+from fastrl.tools import reference
 from fastrl.training.policy import load_run
 
 THRESHOLDS = (1e-4, 1e-3, 1e-2, 1e-1)

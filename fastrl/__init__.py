@@ -9,13 +9,13 @@ before JAX starts a backend::
     fastrl.use_recommended_xla_flags()
 """
 
-from fastrl import xla_flags
+from fastrl.runtime import xla_flags
 
 __version__ = "0.1.0"
 
 
 def use_recommended_xla_flags(devices: int | None = None, algo: str | None = None) -> bool:
-    """Adds fastrl's measured XLA:CPU flags (``fastrl/xla_flags.py``) to ``XLA_FLAGS``.
+    """Adds fastrl's measured XLA:CPU flags (``fastrl/runtime/xla_flags.py``) to ``XLA_FLAGS``.
 
     Call it before the first JAX computation: XLA reads the flags once, when its backend starts.
     A flag that ``XLA_FLAGS`` already names is kept as the user set it, and

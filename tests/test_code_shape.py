@@ -131,17 +131,30 @@ def test_importing_fastrl_leaves_the_environment_untouched():
 
 
 # One path per module: the training layer's modules are imported from ``fastrl.training`` only,
-# the robot scenes' locator from ``fastrl.envs``. ``fastrl.train`` is the command
-# (``python -m fastrl.train``), never imported by code.
+# the robot scenes' locator from ``fastrl.envs``, devices, XLA flags and the compile cache from
+# ``fastrl.runtime``, the tools that look at runs (the scene summary and the learning curve among
+# them) from ``fastrl.tools``, the training command line from ``fastrl.cli``. ``fastrl.train``,
+# ``fastrl.evaluate`` and ``fastrl.report`` are the commands (``python -m fastrl.train``), never
+# imported by code.
 REMOVED_MODULES = {
     f"fastrl.{name}"
-    for name in ("runner", "checkpoint", "config", "policy", "scale", "train", "robot_scenes")
+    for name in (
+        *("runner", "checkpoint", "config", "policy", "scale", "train", "robot_scenes"),
+        *("devices", "xla_flags", "compile_cache"),
+        *("evaluate", "report", "reference", "viewer", "physics.info", "training.curve", "training.train"),
+    )
 }
-ENTRY_POINT = PACKAGE / "train.py"
+# The command-line entry points: file in fastrl/ -> the module whose ``main`` is the command.
+ENTRY_POINTS = {
+    "train.py": "fastrl.cli.train",
+    "evaluate.py": "fastrl.tools.evaluate",
+    "report.py": "fastrl.tools.report",
+}
 # A dotted name through a removed module, as mock.patch strings, docstrings and scripts spell it;
-# ``fastrl.train`` followed by a dot and a name reaches into the module, alone it names the command.
+# a command's name followed by a dot and a name reaches into the module, alone it names the command.
 REMOVED_DOTTED = re.compile(
-    r"\bfastrl\.(?:(?:runner|checkpoint|config|policy|scale|robot_scenes)\b|train\.\w+)"
+    r"\bfastrl\.(?:(?:runner|checkpoint|config|policy|scale|robot_scenes|devices|xla_flags|compile_cache"
+    r"|reference|viewer|physics\.info|training\.curve|training\.train)\b|(?:train|evaluate|report)\.\w+)"
 )
 
 
@@ -193,11 +206,13 @@ def test_no_module_in_fastrl_is_a_reexport_shim():
     assert not shims, "re-export shims in fastrl/:\n  " + "\n  ".join(shims)
 
 
-def test_fastrl_train_is_only_the_commands_entry_point():
+@pytest.mark.parametrize("entry_point", sorted(ENTRY_POINTS))
+def test_each_command_file_is_only_its_entry_point(entry_point):
     """``fastrl/train.py`` keeps ``python -m fastrl.train`` working and exports nothing: it imports
-    ``main`` from ``fastrl.training.train`` and runs it, with no ``__all__`` and no other name."""
-    body = [ast.unparse(n) for n in _body(ast.parse(ENTRY_POINT.read_text()))]
-    assert body == ["from fastrl.training.train import main", "if __name__ == '__main__':\n    main()"]
+    ``main`` from ``fastrl.cli.train`` and runs it, with no ``__all__`` and no other name;
+    ``fastrl/evaluate.py`` and ``fastrl/report.py`` do the same for ``fastrl.tools``."""
+    body = [ast.unparse(n) for n in _body(ast.parse((PACKAGE / entry_point).read_text()))]
+    assert body == [f"from {ENTRY_POINTS[entry_point]} import main", "if __name__ == '__main__':\n    main()"]
 
 
 def _imports_in(tree: ast.AST) -> list[tuple[int, str]]:
@@ -239,11 +254,62 @@ def _removed_names(path: Path) -> list[str]:
 
 
 def test_nothing_imports_the_removed_module_paths():
-    """No file in fastrl/, tests/ or experiments/ imports ``fastrl.{runner,checkpoint,config,
-    policy,scale,train,robot_scenes}`` or names a member through one of them (a mock.patch string
-    through a path that no longer holds the code would patch nothing), and the docs and configs
-    name none either."""
+    """No file in fastrl/, tests/ or experiments/ imports a removed module path
+    (``REMOVED_MODULES``) or names a member through one (a mock.patch string through a path that
+    no longer holds the code would patch nothing), and the docs and configs name none either."""
     paths = [*_files("fastrl", "*.py"), *_files("tests", "*.py"), *_files("experiments", "*.py")]
     paths += [ROOT / "README.md", *_files("docs", "*.md"), *_files("conf", "*.yaml")]
     found = [where for path in paths for where in _removed_names(path)]
     assert not found, "imports of removed module paths:\n  " + "\n  ".join(found)
+
+
+# The layers, bottom up: a module imports from its own layer or those below, never above.
+LAYERS = ("runtime", "physics", "envs", "agents", "training", "tools", "cli")
+# Each package of fastrl/ is one layer. The command lines are ``fastrl.cli``, the entry points
+# (``fastrl/train.py``...) and the package's ``__init__`` (its lazy ``load_policy``). A module in
+# none of them fails the layer test, so a new package or top-level module is placed in a layer
+# before it lands.
+PACKAGE_LAYERS = {f"fastrl.{layer}": layer for layer in LAYERS}
+COMMANDS = {"fastrl", *(f"fastrl.{Path(name).stem}" for name in ENTRY_POINTS)}
+
+
+def _layer(module: str) -> str | None:
+    """The layer a fastrl module belongs to, or None for a module no layer holds."""
+    if module in COMMANDS:
+        return "cli"
+    return next(
+        (layer for pkg, layer in PACKAGE_LAYERS.items() if module == pkg or module.startswith(pkg + ".")),
+        None,
+    )
+
+
+def _layer_imports() -> list[tuple[str, int, str]]:
+    """(importing module, line, imported module) for every import of a fastrl module, at module
+    level, in functions (lazy attributes included) and under ``TYPE_CHECKING`` alike."""
+    modules = _modules()
+    found = []
+    for name, path in modules.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import | ast.ImportFrom):
+                found += [(name, node.lineno, target) for target in sorted(_imported(node, modules))]
+    return found
+
+
+def test_every_module_of_fastrl_has_a_layer():
+    unplaced = [name for name in _modules() if _layer(name) is None]
+    assert not unplaced, f"modules in no layer of {LAYERS} (place them in PACKAGE_LAYERS):\n  " + "\n  ".join(
+        unplaced
+    )
+
+
+def test_no_layer_imports_a_layer_above_it():
+    """Imports run one way, runtime < physics < envs < agents < training < tools < cli: the engine
+    knows no env, the runner no tool that looks at runs (those are callbacks the command line
+    hands it)."""
+    upward = [
+        f"{name}:{line} ({_layer(name)}) imports {target} ({_layer(target)})"
+        for name, line, target in _layer_imports()
+        if None not in (_layer(name), _layer(target))
+        and LAYERS.index(_layer(target)) > LAYERS.index(_layer(name))
+    ]
+    assert not upward, "imports of a higher layer:\n  " + "\n  ".join(upward)

@@ -1,4 +1,4 @@
-"""Reference evaluation (fastrl.reference, ``python -m fastrl.evaluate RUN_DIR --reference``).
+"""Reference evaluation (fastrl.tools.reference, ``python -m fastrl.evaluate RUN_DIR --reference``).
 
 Short horizons (the debug config's 20-step episodes): a contact-free env and a contact env are
 trained in-process for a few hundred steps, then scored by fastrl and by MuJoCo C from the same
@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from fastrl import envs, evaluate, reference
-from fastrl.training.train import CONF_DIR, run
+from fastrl import envs
+from fastrl.cli.train import CONF_DIR, run
+from fastrl.tools import evaluate, reference
 
 
 def _train(tmp_path, overrides):
@@ -65,7 +66,7 @@ def test_reference_flag_prints_both_scores(tmp_path, capsys, overrides):
     )
     substeps = "env.frame_skip=4" in overrides
     assert ("this run's physics (rk4 at 0.01 s x 4" in trained) == substeps
-    assert evaluate.main([str(run_dir), "--reference", "--episodes", "4"]) == 0
+    assert evaluate.run([str(run_dir), "--reference", "--episodes", "4"]) == 0
     out = capsys.readouterr().out
     rows = _rows(out)
     ours, ref = _one(rows, "fastrl", "the run's"), _one(rows, "reference (Gymnasium")

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from fastrl import envs, evaluate, viewer
-from fastrl.viewer import chromium, scene, video
+from fastrl import envs
+from fastrl.tools import evaluate, viewer
+from fastrl.tools.viewer import chromium, scene, video
 
 
 def ant_trajectory(env, frames: int = 40) -> np.ndarray:
@@ -107,7 +108,7 @@ def test_video_errors_are_clear(tmp_path):
 
 
 def test_training_run_writes_viewer_pages_and_evaluate_cli(tmp_path, capsys):
-    from fastrl.training.train import run
+    from fastrl.cli.train import run
     from tests.train.test_front_door import QUICK, compose_cfg
 
     run_dir = tmp_path / "run"
@@ -119,11 +120,11 @@ def test_training_run_writes_viewer_pages_and_evaluate_cli(tmp_path, capsys):
 
     html, npz = tmp_path / "eval.html", tmp_path / "ep.npz"
     args = [str(run_dir), "--episodes", "2", "--steps", "10", "--html", str(html), "--export", str(npz)]
-    assert evaluate.main(args) == 0
+    assert evaluate.run(args) == 0
     frames = len(np.load(npz)["qpos"])
     assert 1 <= frames <= 11 and f'"nframe":{frames},' in html.read_text()
     assert "wrote" in capsys.readouterr().out
-    assert evaluate.main([str(run_dir), "--episodes", "2", "--video", str(tmp_path / "x.avi")]) == 2
+    assert evaluate.run([str(run_dir), "--episodes", "2", "--video", str(tmp_path / "x.avi")]) == 2
     assert "unsupported video format" in capsys.readouterr().err
 
 

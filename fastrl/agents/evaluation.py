@@ -6,8 +6,8 @@ import jax
 import jax.numpy as jnp
 from jax.sharding import Mesh
 
-from fastrl.devices import over_devices
 from fastrl.envs.base import Env
+from fastrl.runtime.devices import over_devices
 
 
 def make_evaluator(env: Env, act, num_envs: int, mesh: Mesh | None = None):

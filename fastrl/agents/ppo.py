@@ -26,9 +26,9 @@ from jax.sharding import Mesh
 from fastrl.agents import normalizer
 from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
-from fastrl.devices import DEVICE_AXIS, over_devices
 from fastrl.envs.base import Env, State
 from fastrl.physics.dataclass import pytree_dataclass
+from fastrl.runtime.devices import DEVICE_AXIS, over_devices
 
 
 @dataclasses.dataclass(frozen=True)
@@ -211,8 +211,8 @@ def make_ppo(
       env: a fastrl env (batched here with vmap).
       network: network sizes.
       total_updates: iterations the run will take (sets the linear learning-rate decay).
-      mesh: a one-axis mesh (``fastrl.devices.DEVICE_AXIS``) to split the work over: each device steps its
-        slice of the environments and computes the gradient of its half of every minibatch;
+      mesh: a one-axis mesh (``fastrl.runtime.devices.DEVICE_AXIS``) to split the work over: each
+        device steps its slice of the environments and computes the gradient of its half of every minibatch;
         gradients are averaged, so the result is the one-device one up to summation order. The
         env batch and the minibatches must divide evenly. None: no explicit split.
     """

@@ -1,8 +1,8 @@
 """Functional environments with Gymnasium v5 semantics, and a batched Gymnasium vector API."""
 
-from fastrl.devices import batch_mesh, over_devices
 from fastrl.envs.base import Env, Randomization, State
 from fastrl.envs.registry import env_class, make, names, register
+from fastrl.runtime.devices import batch_mesh, over_devices
 
 _GYMNASIUM_ADAPTER = ("GymEnv", "VectorEnv", "make_gym", "make_vec")
 

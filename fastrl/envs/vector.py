@@ -30,9 +30,9 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from fastrl.devices import DEVICE_AXIS, batch_mesh, over_devices
 from fastrl.envs.base import Env, State
 from fastrl.envs.registry import make
+from fastrl.runtime.devices import DEVICE_AXIS, batch_mesh, over_devices
 
 
 def _spaces(env: Env) -> tuple[gymnasium.spaces.Box, gymnasium.spaces.Box]:

@@ -3,24 +3,27 @@
 - ``config``: the typed run configuration (``RunConfig``), built from Hydra's composed dict.
 - ``scale``: agent batches in one program (seeds, ``vmap_sweep``) and the state's device layout.
 - ``checkpoint``: the whole training state with orbax, plus the resolved config.
-- ``runner``: the host loop over compiled chunks (``train``).
+- ``runner``: the host loop over compiled chunks (``train``), calling the ``Callback`` objects
+  its caller hands it.
 - ``files``: what a run writes into its folder, never through a link, whole or not at all.
-- ``curve``: ``metrics.csv`` read back and the learning curve drawn.
 - ``policy``: trained policies from run folders (``load_policy``, ``load_run``).
-- ``train``: the command line (Hydra), run as ``python -m fastrl.train`` (``fastrl/train.py`` is
-  its entry point only).
+
+May import the runtime, physics, envs and agents; never the tools that look at runs
+(``fastrl.tools``) or the command lines (``fastrl.cli``), which hand their pieces in.
 """
 
 from fastrl.training.checkpoint import Checkpointer, CheckpointError
 from fastrl.training.config import ConfigError, RunConfig
 from fastrl.training.policy import load_policy, load_run
-from fastrl.training.runner import train
+from fastrl.training.runner import Callback, RunInfo, train
 
 __all__ = [
+    "Callback",
     "CheckpointError",
     "Checkpointer",
     "ConfigError",
     "RunConfig",
+    "RunInfo",
     "load_policy",
     "load_run",
     "train",

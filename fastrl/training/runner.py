@@ -14,10 +14,11 @@ second Ctrl-C stops at once, without saving).
 ``_train`` is the loop; each concern is a small piece it calls: the run's setup (``_setup``:
 agents, learner, layout), its start (``_start``: a fresh or restored state), the compiled chunk
 (``_compile_chunk``), divergence (``_diverged``), evaluation with the collapse watch and the
-``stop_at_return`` record (``_Evaluation``), viewer pages (``_ViewerPages``), outputs
-(``_Outputs``, ``_report_chunk``, ``_write_rows``), checkpoints and the decision to stop
-(``_stop_reason``). A single run is a batch of one (``_Agents``): the loop never asks which it
-is.
+``stop_at_return`` record (``_Evaluation``), outputs (``_Outputs``, ``_report_chunk``,
+``_write_rows``), checkpoints and the decision to stop (``_stop_reason``). A single run is a
+batch of one (``_Agents``): the loop never asks which it is. What looks at the run (viewer
+pages, notes, learning curves) comes from the caller as ``Callback`` objects: the runner
+imports none of those tools.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,13 +45,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh
 
-from fastrl import agents, compile_cache, devices, reference, viewer
+from fastrl import agents
 from fastrl.agents.base import Learner
-from fastrl.devices import to_host
+from fastrl.runtime import compile_cache, devices
+from fastrl.runtime.devices import to_host
 from fastrl.training import files, policy, scale
 from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointError, quiet_library_logs
 from fastrl.training.config import RunConfig
-from fastrl.training.curve import plot_run
 from fastrl.training.files import RunDirError
 
 try:
@@ -58,7 +59,45 @@ try:
 except ImportError:  # Windows: runs take no lock on their folder
     fcntl = None
 
-__all__ = ["CHECKPOINT_DIR", "CollapseWatch", "RunDirError", "RunDirLock", "train"]
+__all__ = ["CHECKPOINT_DIR", "Callback", "CollapseWatch", "RunDirError", "RunDirLock", "RunInfo", "train"]
+
+
+@dataclasses.dataclass(frozen=True)
+class RunInfo:
+    """What a callback sees of a run.
+
+    Fields:
+      cfg      the run's config
+      env      its env
+      learner  its learner (``act``, ``policy_params``): of one agent, over a batch's states
+      batched  the state's leaves have a leading agent axis (a batch of agents)
+      run_dir  the run's folder
+      outputs  each agent's folder and config: the run folder for a single run,
+               ``agents/<tag>/`` for each agent of a batch
+    """
+
+    cfg: RunConfig
+    env: Any
+    learner: Learner
+    batched: bool
+    run_dir: Path
+    outputs: tuple[tuple[Path, RunConfig], ...]
+
+
+class Callback:
+    """A piece the caller hands ``train`` to look at the run; each hook does nothing unless
+    overridden. Hooks run on every process of a multi-host run: one that writes checks
+    ``jax.process_index()``."""
+
+    def on_start(self, run: RunInfo) -> None:
+        """After the run's first line, before its first chunk."""
+
+    def on_chunk(self, run: RunInfo, state, chunk: int, last: bool) -> None:
+        """After chunk ``chunk`` and its evaluation, before its row is written; ``last``: the
+        run's budget ends with this chunk."""
+
+    def on_end(self, run: RunInfo) -> None:
+        """When the run ends (as it returns or raises), before its logs are closed."""
 
 
 def train(
@@ -68,6 +107,7 @@ def train(
     on_chunk=None,
     resume_step: int | None = None,
     record: dict[str, str] | None = None,
+    callbacks: Sequence[Callback] = (),
 ) -> dict[str, Any]:
     """Runs (or resumes) training into ``run_dir``.
 
@@ -86,6 +126,8 @@ def train(
         to ``run_dir/checkpoints_set_aside/`` (never deleted).
       record: ``{relative path: text}`` written into ``run_dir`` with ``config.json`` once the
         run owns the folder (the command line's record of itself, e.g. ``.hydra/overrides.yaml``).
+      callbacks: what looks at the run, called at the start, after every chunk and at the end
+        (the command line's: ``fastrl.tools.callbacks.standard()``).
 
     Nothing is written into ``run_dir`` before the run is known to be valid: a rejected start
     (the folder holds another run's checkpoints, the config differs from the checkpoint's, the
@@ -105,13 +147,13 @@ def train(
         files.refuse_links(run_dir)  # a folder from elsewhere is untrusted: no writes through links
         ckpt = _open_checkpoints(cfg, run_dir, resume)
         try:
-            return _train(cfg, run_dir, ckpt, resume, on_chunk, resume_step, record or {})
+            return _train(cfg, run_dir, ckpt, resume, on_chunk, resume_step, record or {}, callbacks)
         finally:
             ckpt.close()
 
 
 def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_chunk, resume_step,
-           record: dict[str, str]) -> dict[str, Any]:  # fmt: skip
+           record: dict[str, str], callbacks: Sequence[Callback]) -> dict[str, Any]:  # fmt: skip
     """The loop: one compiled chunk, then the host's pieces, until the budget or a stop."""
     clock = _Clock(cfg.train.max_seconds)
     setup = _setup(cfg)
@@ -128,8 +170,13 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
     _claim_folder(run_dir, setup.config, record)  # only now does anything get written into it
     state = _place(setup, state)
     program = compiling.result()
-    evaluation, pages, sizer = _Evaluation(setup), _ViewerPages(setup, run_dir), _ChunkSizer(setup)
+    evaluation, sizer = _Evaluation(setup), _ChunkSizer(setup)
+    info = RunInfo(
+        setup.cfg, setup.env, setup.learner, setup.agents.batched, run_dir, _agent_dirs(setup, run_dir)
+    )
     _announce_start(setup, program, run_dir)
+    for cb in callbacks:
+        cb.on_start(info)
     outs = _open_outputs(setup, run_dir, progress.chunk, setup.agents.env_steps(state))
     status, row = "done", {}
     stop = _StopFlag()
@@ -148,7 +195,8 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
                 _report_chunk(setup, progress, rows, state, dt, n, program.compile_s)
                 if evaluation.due(progress, n):
                     evaluation(state, rows, progress)
-                pages(state, progress)
+                for cb in callbacks:
+                    cb.on_chunk(info, state, progress.chunk, progress.done(setup))
                 row = _write_rows(setup, rows, outs)
                 if on_chunk is not None:
                     on_chunk(progress.chunk, row)
@@ -163,7 +211,7 @@ def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_c
     except (OSError, files.WriteError) as e:  # a full disk, a read-only folder
         raise files.WriteError(_write_failure(e, ckpt, run_dir)) from None
     finally:
-        _close_outputs(outs)
+        _end(callbacks, info, outs)
     summary = _summary(setup, progress, status, state, row, program.compile_s, run_dir, stop.set)
     summary["signal"] = stop.signum
     return summary
@@ -519,8 +567,7 @@ def _compile_chunk(setup: _Setup) -> _Compiling:
 
 
 def _announce_start(setup: _Setup, program: _Program, run_dir: Path) -> None:
-    """The run's first line (size, compile, devices) and, off the env's own physics, a note
-    (process 0 of a multi-host run only)."""
+    """The run's first line: size, compile, devices (process 0 of a multi-host run only)."""
     if jax.process_index() != 0:
         return
     cfg, n, k = setup.cfg, setup.agents.n, setup.cfg.train.updates_per_chunk
@@ -535,10 +582,6 @@ def _announce_start(setup: _Setup, program: _Program, run_dir: Path) -> None:
         f"{program.compile_s:.1f}s ({program.note}) on {scale.describe(setup.shardings, setup.mesh)}; "
         f"run dir {run_dir}"
     )
-    if any(getattr(cfg.env, k) is not None for k in ("integrator", "solver_iterations", "timestep")):
-        physics_note = reference.physics_label(setup.env)
-        print(f"[fastrl] evaluation returns are at this run's physics ({physics_note}); the score in the "
-              f"reference simulator: python -m fastrl.evaluate {run_dir} --reference")  # fmt: skip
 
 
 def _diverged(agents_: _Agents, progress: _Progress, rows: list[dict]) -> bool:
@@ -626,39 +669,24 @@ class _Evaluation:
                                        "eval_return": r["eval/episode_return"]}  # fmt: skip
 
 
-class _ViewerPages:
-    """A rollout's 3D page every ``logger.viewer_every`` chunks and at the last (agent 0 of a batch)."""
-
-    def __init__(self, setup: _Setup, run_dir: Path):
-        self.setup, self.run_dir, self.every = setup, run_dir, setup.cfg.logger.viewer_every
-        self.write = None
-        if self.every:
-            title = f"{setup.cfg.env.name} / {setup.cfg.algo_name}"
-            self.write = viewer.make_run_writer(
-                setup.env, setup.learner.act, title, batched=setup.agents.batched
-            )
-
-    def __call__(self, state, progress: _Progress) -> None:
-        chunk = progress.chunk
-        if self.write is None or not (progress.done(self.setup) or chunk % self.every == 0):
-            return
-        params = to_host(self.setup.learner.policy_params(state))  # every process gathers
-        if jax.process_index() == 0:
-            self.write(self.run_dir, chunk, params, jax.random.PRNGKey(self.setup.cfg.seed + 1))
-
-
 def _open_outputs(setup: _Setup, run_dir: Path, chunk: int, env_steps: int) -> list[_Outputs]:
     """Each agent's outputs: the run folder's own for a single run, ``agents/<tag>/`` (with the
     agent's own config.json) for each agent of a batch."""
     if not setup.agents.batched:
         return [_Outputs(run_dir, setup.cfg, chunk, env_steps)]
     outs = []
-    for spec in setup.agents.specs:
-        agent_dir = run_dir / "agents" / spec.tag
+    for agent_dir, config in _agent_dirs(setup, run_dir):
         agent_dir.mkdir(parents=True, exist_ok=True)
-        files.write_text(agent_dir / "config.json", json.dumps(spec.config.to_dict(), indent=2))
-        outs.append(_Outputs(agent_dir, spec.config, chunk, env_steps))
+        files.write_text(agent_dir / "config.json", json.dumps(config.to_dict(), indent=2))
+        outs.append(_Outputs(agent_dir, config, chunk, env_steps))
     return outs
+
+
+def _agent_dirs(setup: _Setup, run_dir: Path) -> tuple[tuple[Path, RunConfig], ...]:
+    """Each agent's folder and config: the run folder for a single run, ``agents/<tag>/`` in a batch."""
+    if not setup.agents.batched:
+        return ((run_dir, setup.cfg),)
+    return tuple((run_dir / "agents" / spec.tag, spec.config) for spec in setup.agents.specs)
 
 
 def _report_chunk(setup: _Setup, progress: _Progress, rows: list[dict], state, dt: float, n: int,
@@ -842,12 +870,20 @@ def _write_failure(e: BaseException, ckpt: Checkpointer, run_dir: Path) -> str:
     return f"{what}. Free space (or make the folder writable), then: python -m fastrl.train resume={run_dir}"
 
 
+def _end(callbacks: Sequence[Callback], info: RunInfo, outs: list[_Outputs]) -> None:
+    """The callbacks' ends, then each agent's logs closed (even when a callback raises)."""
+    try:
+        for cb in callbacks:
+            cb.on_end(info)
+    finally:
+        _close_outputs(outs)
+
+
 def _close_outputs(outs: list[_Outputs]) -> None:
-    """Draws each agent's curve and closes its logs. A curve that cannot be written (the full
-    disk that ended the run) keeps the previous one, and says so."""
+    """Closes each agent's logs. Logs that cannot be flushed (the full disk that ended the run)
+    are said to be not updated."""
     for out in outs:
         try:
-            out.plot()
             out.close()
         except OSError as e:
             print(f"[fastrl] warning: the outputs of {out.run_dir} were not updated: {e.strerror or e}",
@@ -871,7 +907,7 @@ def _reduce(sums: dict, n: int) -> dict[str, float]:
 
 
 class _Outputs:
-    """TensorBoard, metrics.csv and the curve PNG of one run folder."""
+    """TensorBoard and metrics.csv of one run folder."""
 
     def __init__(self, run_dir: Path, cfg: RunConfig, resumed_chunk: int, env_steps: int):
         if jax.process_index() != 0:  # multi-host runs: one process writes the run's outputs
@@ -929,13 +965,6 @@ class _Outputs:
         fields = fields + extra
         lines.append([row.get(k, "") for k in fields])
         files.append_text(self.csv_path, _csv_text(lines))
-
-    def plot(self) -> None:
-        if not (self.cfg.logger.plot and self.cfg.logger.csv and self.csv_path.exists()):
-            return
-        plot_run(
-            self.csv_path, self.run_dir / "curve.png", title=f"{self.cfg.env.name} / {self.cfg.algo_name}"
-        )
 
     def close(self) -> None:
         if self.writer is not None:

@@ -17,7 +17,7 @@ inside the state is split by environment and everything else is replicated. XLA 
 gradient all-reduce; the math is that of the one-device program up to summation order.
 Learners that split their own work (``learner_splits``: PPO) get the mesh and use ``shard_map``
 for the env step and the minibatch gradients, which XLA's automatic partitioning does not split.
-The mesh itself and ``to_host`` live in ``fastrl.devices``.
+The mesh itself and ``to_host`` live in ``fastrl.runtime.devices``.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from fastrl import agents
 from fastrl.agents.base import Learner
-from fastrl.devices import DEVICE_AXIS, mesh, to_host
 from fastrl.envs.base import State
+from fastrl.runtime.devices import DEVICE_AXIS, mesh, to_host
 from fastrl.training.config import ConfigError, RunConfig
 
 __all__ = [

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from fastrl import physics
-from fastrl.physics import constraint, info, noslip
+from fastrl.physics import constraint, noslip
+from fastrl.tools import scene_info
 
 # Three kinds of actuator state: a position servo with a filtered setpoint (filterexact), a
 # filtered motor (filter), an integrated-velocity servo clamped to its actrange (integrator), an
@@ -144,19 +145,21 @@ def test_noslip_tracks_mujoco_and_stops_the_creep(cone, x64):
 
 
 def test_noslip_rows_and_the_summary():
-    """The sweeps' static blocks, and ``info`` naming what a model simulates."""
+    """The sweeps' static blocks, and ``scene_info`` naming what a model simulates."""
     m = physics.load_mjcf(NOSLIP.format(cone="pyramidal"))
     assert m.noslip_iterations == 10 and noslip.friction_rows(m).size == 1
     pairs = noslip.pyramid_pairs(m)  # every slot's edges, two by two: condim - 1 pairs a slot
     assert pairs.size == sum(n * (dim - 1) for dim, _, n in constraint.contact_groups(m) if dim > 1)
     assert pairs[0] == constraint.first_contact_row(m) and np.all(np.diff(pairs) == 2)
-    lines = "\n".join(info.summary_lines(m))
+    lines = "\n".join(scene_info.summary_lines(m))
     assert "up to 10 Gauss-Seidel sweeps" in lines and "2 filterexact" in lines
     plain = physics.load_mjcf(NOSLIP.format(cone="elliptic").replace(' noslip_iterations="10"', ""))
-    assert plain.noslip_iterations == 0 and "noslip          off" in "\n".join(info.summary_lines(plain))
+    assert plain.noslip_iterations == 0 and "noslip          off" in "\n".join(
+        scene_info.summary_lines(plain)
+    )
     a = physics.load_mjcf(ACTIVATION)
     assert a.na == 4 and "4 activations (1 filter, 1 filterexact, 2 integrator; 2 actearly, 2 clamped" in (
-        "\n".join(info.summary_lines(a))
+        "\n".join(scene_info.summary_lines(a))
     )
     with pytest.raises(ValueError, match="act has shape"):
         physics.make_data(a, act=np.zeros(3))

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from fastrl import physics
-from fastrl.physics import equality, info
+from fastrl.physics import equality
+from fastrl.tools import scene_info
 from tests.conftest import random_state
 
 # A four-bar linkage: a crank, a coupler and a rocker on the ground, the loop closed by a connect.
@@ -209,5 +210,5 @@ def test_constraints_switch_on_and_off_between_steps(x64):
 
 def test_scene_summary_lists_equalities():
     _, m = _models("welds")
-    text = "\n".join(info.summary_lines(m))
+    text = "\n".join(scene_info.summary_lines(m))
     assert "equalities      3 (3 weld; 1 off at reset), 18 rows" in text

@@ -116,8 +116,8 @@ def test_friction_loss_gradients_are_finite(x64):
 
 
 def test_scene_summary_lists_the_row_kinds():
-    from fastrl.physics import info
+    from fastrl.tools import scene_info
 
-    lines = "\n".join(info.summary_lines(physics.load_mjcf(asset("friction_loss"))))
+    lines = "\n".join(scene_info.summary_lines(physics.load_mjcf(asset("friction_loss"))))
     assert "friction loss   9 dofs, 0 tendons" in lines
     assert "constraint rows 42 (9 friction loss + 1 limit + 32 contact" in lines

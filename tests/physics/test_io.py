@@ -114,15 +114,15 @@ def test_model_is_a_pytree_with_static_topology():
 
 
 def test_info_cli_prints_scene_summary(capsys):
-    from fastrl.physics import info
+    from fastrl.tools import scene_info
 
-    info.main([str(__import__("pathlib").Path(physics.__file__).parents[1] / "assets" / "ant.xml")])
+    scene_info.main([str(__import__("pathlib").Path(physics.__file__).parents[1] / "assets" / "ant.xml")])
     out = capsys.readouterr().out
     assert "13 kept of 91 geom pairs (12 plane-capsule, 1 plane-sphere)" in out
     assert "25 candidates" in out and "rows for the 8 deepest (nconmax 8)" in out
     assert "40 (0 friction loss + 8 limit + 32 contact" in out
     with pytest.raises(SystemExit) as err:
-        info.main(["no/such.xml"])
+        scene_info.main(["no/such.xml"])
     assert err.value.code == 2
 
 

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from fastrl import physics
-from fastrl.physics import info, smooth, tendon
+from fastrl.physics import smooth, tendon
+from fastrl.tools import scene_info
 from tests.conftest import random_state
 
 # (a) a fixed tendon coupling two hinge trees, one along a chain; springs with a dead band, dampers,
@@ -273,9 +274,9 @@ def test_model_without_tendons_or_with_inert_ones_keeps_none():
 
 
 def test_info_counts_tendons():
-    lines = info.summary_lines(physics.load_mjcf(ARM))
+    lines = scene_info.summary_lines(physics.load_mjcf(ARM))
     assert "tendons         4 (0 fixed, 4 spatial; 2 actuated)" in lines
-    lines = info.summary_lines(physics.load_mjcf(FIXED))
+    lines = scene_info.summary_lines(physics.load_mjcf(FIXED))
     assert "tendons         2 (2 fixed, 0 spatial; 2 actuated)" in lines
 
 

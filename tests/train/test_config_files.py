@@ -8,8 +8,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from fastrl import agents
+from fastrl.cli.train import CONF_DIR
 from fastrl.training.config import SECTIONS, RunConfig, defaults
-from fastrl.training.train import CONF_DIR
 
 CONF = Path(CONF_DIR)
 GROUPS = (*SECTIONS, "algo")  # a file in conf/<group>/ is that section of the config

@@ -14,9 +14,9 @@ from hydra.errors import MissingConfigException
 
 from fastrl import agents, envs
 from fastrl.agents.ppo import gae
+from fastrl.cli.train import CONF_DIR, run
 from fastrl.training.checkpoint import CheckpointError
 from fastrl.training.config import ConfigError, RunConfig
-from fastrl.training.train import CONF_DIR, run
 
 QUICK = ["env=inverted_pendulum", "debug=quick", "logger=quiet"]
 
@@ -323,22 +323,22 @@ def _csv_rows(run_dir):
 
 def test_load_policy_and_evaluate_cli(tmp_path, capsys):
     import fastrl
-    from fastrl import evaluate
+    from fastrl.tools import evaluate
 
     run(compose_cfg([*QUICK, f"run_dir={tmp_path}"]))
     policy = fastrl.load_policy(tmp_path)
     action = jax.jit(policy)(jnp.zeros((3, 4)))
     assert action.shape == (3, 1) and np.all(np.abs(np.asarray(action)) <= 3.0)
-    assert evaluate.main([str(tmp_path), "--episodes", "4", "--export", str(tmp_path / "ep.npz")]) == 0
+    assert evaluate.run([str(tmp_path), "--episodes", "4", "--export", str(tmp_path / "ep.npz")]) == 0
     out = capsys.readouterr().out
     assert "return" in out and "+-" in out
     assert np.load(tmp_path / "ep.npz")["qpos"].shape[1] == 2
-    assert evaluate.main([str(tmp_path / "nothing")]) == 2
+    assert evaluate.run([str(tmp_path / "nothing")]) == 2
 
 
 def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
     """The command line gives PPO one CPU device per core, as many as divide its batches."""
-    from fastrl.training import train
+    from fastrl.cli import train
 
     monkeypatch.delenv("FASTRL_CPU_DEVICES", raising=False)
     ppo = typed(["env=inverted_pendulum", "algo=ppo", "algo.num_envs=6", "algo.unroll_length=4"])
@@ -362,8 +362,8 @@ def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
 def test_cli_xla_flags_keep_what_the_user_set(monkeypatch):
     from jax._src import xla_bridge
 
-    from fastrl import xla_flags
-    from fastrl.training import train
+    from fastrl.cli import train
+    from fastrl.runtime import xla_flags
 
     ppo = typed(["env=inverted_pendulum", "algo=ppo", "algo.num_envs=6", "algo.unroll_length=4"])
     monkeypatch.setenv("FASTRL_CPU_DEVICES", "2")
@@ -400,8 +400,8 @@ def test_cli_xla_flags_per_learner(monkeypatch):
     user's own."""
     from jax._src import xla_bridge
 
-    from fastrl import xla_flags
-    from fastrl.training import train
+    from fastrl.cli import train
+    from fastrl.runtime import xla_flags
 
     sac = typed(["env=inverted_pendulum", "algo=sac", "algo.num_envs=4"])
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)

@@ -16,12 +16,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fastrl import envs, evaluate, physics
+from fastrl import envs, physics
+from fastrl.cli.train import run
+from fastrl.tools import evaluate
 from fastrl.training.checkpoint import CheckpointError
 from fastrl.training.config import ConfigError
 from fastrl.training.policy import load_policy, load_run
 from fastrl.training.runner import RunDirError, RunDirLock
-from fastrl.training.train import run
 
 from .test_front_door import QUICK, compose_cfg
 
@@ -193,9 +194,9 @@ def test_a_corrupt_newest_checkpoint_falls_back_to_the_one_before(tmp_path, capf
     assert "could not be read, using step 1" in err and "checkpoints/2" in err
     assert "Event loop is closed" not in err and "tensorstore_spec" not in err
 
-    assert evaluate.main([str(tmp_path), "--step", "1", "--episodes", "2"]) == 0
+    assert evaluate.run([str(tmp_path), "--step", "1", "--episodes", "2"]) == 0
     assert "at 256 env steps" in capfd.readouterr().out
-    assert evaluate.main([str(tmp_path), "--step", "7"]) == 2
+    assert evaluate.run([str(tmp_path), "--step", "7"]) == 2
     assert "no checkpoint of step 7" in capfd.readouterr().err
 
     # Resume continues from chunk 1; the unreadable chunk 2 is moved aside, never deleted.
@@ -276,7 +277,7 @@ def test_the_cached_program_key_follows_what_builds_the_program(tmp_path):
     """The key of a kept traced program changes with the configuration, the model and the state's
     shapes, not with memory addresses in reprs or the state's values; an entry that cannot be
     read is traced again."""
-    from fastrl import compile_cache
+    from fastrl.runtime import compile_cache
 
     model = envs.make("inverted_pendulum").model
     state = {"params": jnp.zeros((3, 2)), "step": jnp.int32(0)}

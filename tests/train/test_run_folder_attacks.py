@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fastrl.cli.train import resumed_config, run
 from fastrl.training import runner
 from fastrl.training.checkpoint import Checkpointer
 from fastrl.training.config import ConfigError
 from fastrl.training.runner import RunDirError
-from fastrl.training.train import resumed_config, run
 
 from .test_front_door import QUICK, QUICK_RESUME, _weights_of, compose_cfg, typed
 from .test_reliability import QUICK_CLI, _env
@@ -128,11 +128,11 @@ def test_a_half_written_last_metrics_row_is_set_aside_and_the_run_continues(save
 
 @pytest.mark.parametrize("damage", ["null", "[1]", "{}"])
 def test_damaged_checkpoint_metadata_falls_back_to_the_one_before(saved_run, tmp_path, damage, capfd):
-    from fastrl import evaluate
+    from fastrl.tools import evaluate
 
     run_dir = _copy(saved_run, tmp_path / "run")
     (run_dir / "checkpoints" / "2" / "meta" / "metadata").write_text(damage)
-    assert evaluate.main([str(run_dir), "--episodes", "2"]) == 0
+    assert evaluate.run([str(run_dir), "--episodes", "2"]) == 0
     out, err = capfd.readouterr()
     assert "at 256 env steps" in out and "using step 1 instead" in err and "metadata" in err
 

@@ -10,7 +10,8 @@ import jax
 import numpy as np
 import pytest
 
-from fastrl import agents, report
+from fastrl import agents
+from fastrl.tools import callbacks, report
 from fastrl.training import runner, scale
 from fastrl.training.checkpoint import CheckpointError
 from fastrl.training.config import ConfigError
@@ -82,7 +83,7 @@ def test_batch_run_logs_each_agent_and_resumes_bit_exactly(tmp_path):
         "train.vmap_sweep={entropy_cost:[0.0,0.01]}",
     ]
     cfg = typed(overrides)
-    full = runner.train(cfg, tmp_path / "full")
+    full = runner.train(cfg, tmp_path / "full", callbacks=callbacks.standard())  # the curves among them
     assert full["status"] == "done" and len(full["agents"]) == 4
     agent_dirs = sorted((tmp_path / "full" / "agents").iterdir())
     assert [d.name for d in agent_dirs] == full["agents"]
@@ -104,7 +105,7 @@ def test_batch_run_logs_each_agent_and_resumes_bit_exactly(tmp_path):
             np.testing.assert_array_equal(a[key], b[key])
     # One agent's policy out of the batch checkpoint: by index, by tag, or by its own folder.
     import fastrl
-    from fastrl import evaluate
+    from fastrl.tools import evaluate
 
     with pytest.raises(CheckpointError, match="batch of 4 agents.*agent=0"):
         fastrl.load_policy(tmp_path / "full")
@@ -117,8 +118,8 @@ def test_batch_run_logs_each_agent_and_resumes_bit_exactly(tmp_path):
     np.testing.assert_array_equal(acts[2], by_tag(obs))
     assert not np.array_equal(acts[0], acts[1])  # seeds 0 and 1: different networks
     assert fastrl.load_policy(agent_dirs[3]).run_config["algo"]["entropy_cost"] == 0.01
-    assert evaluate.main([str(tmp_path / "full"), "--agent", "1", "--episodes", "2"]) == 0
-    assert report.main([str(tmp_path / "full")]) == 0
+    assert evaluate.run([str(tmp_path / "full"), "--agent", "1", "--episodes", "2"]) == 0
+    assert report.run([str(tmp_path / "full")]) == 0
     table = (tmp_path / "full" / "report.md").read_text()
     assert "algo.entropy_cost=0.0" in table and "algo.entropy_cost=0.01" in table
 

@@ -4,7 +4,7 @@ import os
 import subprocess
 import sys
 
-from fastrl import report
+from fastrl.tools import report
 
 
 def test_multirun_2_learning_rates_x_2_seeds_and_report(tmp_path):
@@ -18,7 +18,7 @@ def test_multirun_2_learning_rates_x_2_seeds_and_report(tmp_path):
         for name in ("config.json", "metrics.csv", "curve.png"):
             assert (run / name).exists(), run / name
         assert any((run / "checkpoints").iterdir()) and any((run / "tb").iterdir())
-    assert report.main([str(tmp_path / "sweep")]) == 0
+    assert report.run([str(tmp_path / "sweep")]) == 0
     table = (tmp_path / "sweep" / "report.md").read_text()
     assert "algo.learning_rate=0.001" in table and "algo.learning_rate=0.0003" in table
     assert table.count("| 0,1 |") == 2  # two configurations, each over seeds 0 and 1

@@ -1,6 +1,6 @@
 """A run's learning curve: ``metrics.csv`` read back, and ``curve.png`` drawn from it.
 
-The runner draws each run's curve at its end; ``fastrl.report`` reads the same files for its
+The curve callback draws each run's curve at its end; ``fastrl.report`` reads the same files for its
 summaries. Figures are written whole or not at all, never through a link in the run folder.
 """
 

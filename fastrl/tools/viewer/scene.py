@@ -136,7 +136,7 @@ def build_scene(
 
     Args:
       env: a fastrl env (its ``model``, ``dt`` and MJCF asset are used).
-      qpos: (T, nq) positions, e.g. from ``fastrl.evaluate.rollout_qpos``.
+      qpos: (T, nq) positions, e.g. from ``fastrl.tools.evaluate.rollout_qpos``.
       title: a line shown above the view.
       asset: the env's MJCF file when it was built with a non-default ``asset=``.
       markers: (T, M, 3) goal positions per frame (None: none).

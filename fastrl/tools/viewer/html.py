@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 from fastrl.agents.evaluation import make_rollout
-from fastrl.viewer.scene import build_scene, scene_json
+from fastrl.tools.viewer.scene import build_scene, scene_json
 
 JS_PATH = Path(__file__).with_name("viewer.js")
 # Env steps in a run's viewer rollout: a short clip keeps each file well under a megabyte.

@@ -1,7 +1,9 @@
 """``python -m fastrl.train env=ant algo=ppo [key=value ...]``: the training front door.
 
 Hydra composes ``conf/`` (see conf/train.yaml); this module turns the result into a typed
-``RunConfig`` (failing before any compilation on a bad value) and hands it to the runner.
+``RunConfig`` (failing before any compilation on a bad value) and hands it to the runner, with
+the callbacks that look at the run (``fastrl.tools.callbacks.standard()``: viewer pages, the
+physics note, learning curves).
 ``resume=PATH`` continues a given run with its own saved command line (further ``key=value``
 arguments apply on top; ``resume_step=N`` picks a checkpoint), ``resume=true`` the run in
 ``hydra.run.dir`` or else the latest run of the same env/algo.
@@ -26,7 +28,9 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from fastrl import agents, compile_cache, envs, xla_flags
+from fastrl import agents, envs
+from fastrl.runtime import compile_cache, xla_flags
+from fastrl.tools import callbacks
 from fastrl.training import files, runner
 from fastrl.training.checkpoint import CHECKPOINT_DIR, CheckpointError
 from fastrl.training.config import SECTIONS, ConfigError, RunConfig, defaults, identity_diff
@@ -333,7 +337,12 @@ def run(cfg: DictConfig, split_cpu: bool = False, overrides: list[str] | None = 
             ".hydra/config.yaml": OmegaConf.to_yaml(rc.to_dict()),
         }
     return runner.train(
-        rc, target or run_dir, resume=target is not None, resume_step=resume_step, record=record
+        rc,
+        target or run_dir,
+        resume=target is not None,
+        resume_step=resume_step,
+        record=record,
+        callbacks=callbacks.standard(),
     )
 
 

@@ -1,10 +1,10 @@
 // fastrl's rollout viewer: a small self-contained WebGL 1 renderer, no libraries.
 //
-// It reads the scene that fastrl/viewer/scene.py embeds in <script id="scene">: static geoms
+// It reads the scene that fastrl/tools/viewer/scene.py embeds in <script id="scene">: static geoms
 // (MuJoCo geom types, sizes in MuJoCo's convention, colours, pose in their body) and, per frame,
 // every body's world pose [x, y, z, qw, qx, qy, qz]. Each geom becomes a triangle mesh with its
 // size baked in; a frame draws every geom at (body pose) * (geom pose). The world is z-up, as
-// in MuJoCo. The page around it (fastrl/viewer/html.py) provides the controls and the
+// in MuJoCo. The page around it (fastrl/tools/viewer/html.py) provides the controls and the
 // <pre id="errors"> that records any error, which the headless-browser test reads.
 (function () {
   "use strict";

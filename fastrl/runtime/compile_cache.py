@@ -3,7 +3,7 @@
 A second launch of the same run (same program, same XLA flags, same JAX) reads its compiled
 chunk from disk instead of compiling it again. The command-line entry points (``fastrl.train``,
 ``fastrl.evaluate``) turn it on; importing fastrl as a library changes nothing, and a library
-user opts in with ``fastrl.compile_cache.enable()``.
+user opts in with ``fastrl.runtime.compile_cache.enable()``.
 
 Where: ``$FASTRL_COMPILE_CACHE`` if set (an empty value turns the cache off), else
 ``$XDG_CACHE_HOME/fastrl/jax`` (``~/.cache/fastrl/jax``). The cache is bounded
@@ -123,7 +123,7 @@ def is_enabled() -> bool:
 @functools.cache
 def _code_digest() -> str:
     """A digest of every file of the fastrl package (source and assets)."""
-    root, h = Path(__file__).resolve().parent, hashlib.sha256()
+    root, h = Path(__file__).resolve().parents[1], hashlib.sha256()
     for path in sorted(p for p in root.rglob("*") if p.is_file() and "__pycache__" not in p.parts):
         h.update(str(path.relative_to(root)).encode())
         h.update(path.read_bytes())

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fastrl.viewer.scene import asset_path, load_mj_model, root_body
+from fastrl.tools.viewer.scene import asset_path, load_mj_model, root_body
 
 VIDEO_FORMATS = (".gif", ".mp4")
 # Headless backends, in the order tried when MUJOCO_GL is not set.

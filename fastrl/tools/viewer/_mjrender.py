@@ -1,6 +1,6 @@
 """Renders a qpos trajectory with MuJoCo's renderer into a GIF or MP4 (a child process).
 
-``fastrl.viewer.video`` runs this file as a script with ``MUJOCO_GL`` set to the OpenGL backend
+``fastrl.tools.viewer.video`` runs this file as a script with ``MUJOCO_GL`` set to the OpenGL backend
 to try. A backend is chosen once per process (PyOpenGL binds its platform at import), hence a
 process per attempt; the script imports only mujoco, numpy and the encoder, so an attempt
 costs a fraction of a second. Exit status: 0 written, 3 the OpenGL backend failed (the parent

@@ -6,9 +6,9 @@ OSMesa). ``python -m fastrl.evaluate RUN_DIR --html out.html --video out.gif`` d
 trained run, and ``logger.viewer_every=N`` makes the training runner write a page every N chunks.
 """
 
-from fastrl.viewer.html import make_run_writer, page, write_html
-from fastrl.viewer.scene import body_poses, build_scene
-from fastrl.viewer.video import VIDEO_FORMATS, VideoError, render_video
+from fastrl.tools.viewer.html import make_run_writer, page, write_html
+from fastrl.tools.viewer.scene import body_poses, build_scene
+from fastrl.tools.viewer.video import VIDEO_FORMATS, VideoError, render_video
 
 __all__ = [
     "VIDEO_FORMATS",

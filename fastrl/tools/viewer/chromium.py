@@ -1,7 +1,7 @@
 """Opening viewer pages in headless Chromium: the DOM after playback, and screenshots.
 
 The tests use it to check a page in a real browser, and the README's screenshot is made with it
-(``python -m fastrl.viewer.chromium page.html shot.png``). WebGL runs without a GPU through
+(``python -m fastrl.tools.viewer.chromium page.html shot.png``). WebGL runs without a GPU through
 SwiftShader. Chromium comes from the system (Debian: ``apt-get install chromium``).
 """
 
@@ -69,7 +69,7 @@ def screenshot(
 
 if __name__ == "__main__":
     if len(sys.argv) not in (3, 5, 6):
-        sys.exit("usage: python -m fastrl.viewer.chromium PAGE.html OUT.png [WIDTH HEIGHT [FRAME]]")
+        sys.exit("usage: python -m fastrl.tools.viewer.chromium PAGE.html OUT.png [WIDTH HEIGHT [FRAME]]")
     wh = (int(sys.argv[3]), int(sys.argv[4])) if len(sys.argv) >= 5 else (800, 600)
     print(
         screenshot(sys.argv[1], sys.argv[2], size=wh, frame=int(sys.argv[5]) if len(sys.argv) == 6 else None)

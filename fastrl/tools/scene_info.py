@@ -1,6 +1,6 @@
 """Scene summary: what the compiled program will model.
 
-    python -m fastrl.physics.info MODEL.xml [--integrator rk4] [--solver-iterations 8]
+    python -m fastrl.tools.scene_info MODEL.xml [--integrator rk4] [--solver-iterations 8]
 
 Prints bodies, joints and dofs, geoms, the candidate contact pairs kept (by geom-type pair) out
 of all geom pairs, and the static constraint-row budget the solver works with.
@@ -142,7 +142,7 @@ def _tendons(m: Model) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m fastrl.physics.info", description=__doc__.splitlines()[0]
+        prog="python -m fastrl.tools.scene_info", description=__doc__.splitlines()[0]
     )
     parser.add_argument("model", help="an MJCF file")
     parser.add_argument("--integrator", choices=["euler", "rk4", "implicitfast"], default=None)
