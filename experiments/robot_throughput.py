@@ -9,7 +9,10 @@ under uniform random actions), on one CPU device and split over 2 (one per core,
 process), as ``experiments.bench_envs`` measures them. Beside it, MuJoCo C stepping the same
 scene through ``mujoco.rollout`` with 2 threads (float64, physics only: no observation or
 reward), ``frame_skip`` physics steps per control step, with the servo targets that the same
-kind of random actions sets from a new episode's start.
+kind of random actions sets from a new episode's start. And EnvPool's C++ port of the same task
+(``ENVPOOL_PORTS``: physics, observation, reward, auto-reset) with 2 threads, from the peer venv
+(``experiments/peers/setup_peers.sh``), at each power of two of envs from 32 up to the batch that
+fits half the machine's memory (the ports hold tens of MB per env); the fastest is kept.
 
 Writes ``experiments/results/robot_throughput.{json,md}``; a run's rows replace the earlier rows of its
 envs there.
@@ -19,7 +22,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
+import subprocess
 import time
 
 import jax
@@ -40,6 +45,15 @@ SCENES = {
     if isinstance(cls, type) and issubclass(cls, robots.RobotTask) and cls.scene  # not the base classes
 }
 TASKS = sorted(SCENES)
+# EnvPool's C++ ports of the same Playground tasks (observation, reward and auto-reset included)
+ENVPOOL_PORTS = {
+    "go1_joystick": "Go1JoystickFlatTerrain-v1",
+    "go1_joystick_rough": "Go1JoystickRoughTerrain-v1",
+    "humanoid_joystick": "BerkeleyHumanoidJoystickFlatTerrain-v1",
+    "leap_cube_reorient": "LeapCubeReorient-v1",
+    "panda_pick_cube": "PandaPickCube-v1",
+}
+PORT_MEMORY_SHARE = 0.5  # of physical memory: the most an EnvPool run may be expected to hold
 
 
 def bench_rollout(name: str, batch: int, steps: int, seed: int = 0) -> dict:
@@ -69,6 +83,43 @@ def bench_rollout(name: str, batch: int, steps: int, seed: int = 0) -> dict:
     return {"control_steps_per_s": batch * steps / wall, "physics_steps_per_control_step": env.frame_skip}
 
 
+def _envpool(env_id: str, num_envs: int, seconds: float) -> dict:
+    cmd = [str(bench_envs.PEERS), str(results.ROOT / "experiments/peers/envpool_ant.py"),
+           "--env-id", env_id, "--num-envs", str(num_envs), "--seconds", str(seconds)]  # fmt: skip
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    if out.returncode:
+        raise RuntimeError(f"EnvPool {env_id} at {num_envs} envs failed: {out.stderr[-800:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def bench_envpool_port(name: str, batch: int, seconds: float) -> dict | None:
+    """EnvPool's C++ port of the task with 2 threads, at the number of envs that runs fastest among
+    the powers of two from 32 up to ``batch`` whose memory (extrapolated from 32 envs' peak) fits
+    ``PORT_MEMORY_SHARE`` of this machine's: the best rate, its envs, and every size tried."""
+    if not bench_envs.PEERS.exists():
+        return None
+    first = _envpool(ENVPOOL_PORTS[name], 32, seconds)
+    per_env = first["peak_rss_bytes"] / 32  # the process's base memory counted in: an overestimate
+    budget = PORT_MEMORY_SHARE * os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    tried = {32: first}
+    n = 64
+    while n <= batch and n * per_env <= budget:
+        tried[n] = _envpool(ENVPOOL_PORTS[name], n, seconds)
+        n *= 2
+    best = max(tried, key=lambda k: tried[k]["control_steps_per_s"])
+    return {
+        "env_id": ENVPOOL_PORTS[name],
+        "num_envs": best,
+        "control_steps_per_s": tried[best]["control_steps_per_s"],
+        "frame_skip": tried[best].get("frame_skip"),
+        "tried": {
+            k: {"control_steps_per_s": v["control_steps_per_s"], "peak_rss_bytes": v["peak_rss_bytes"]}
+            for k, v in tried.items()
+        },
+        "envpool_version": first["envpool_version"],
+    }
+
+
 def markdown(rows: list[dict], commands: list[str]) -> str:
     lines = [
         "# Real-robot task throughput (control steps/s, this machine, one run)", "",
@@ -76,19 +127,30 @@ def markdown(rows: list[dict], commands: list[str]) -> str:
         + "; ".join(f"`{c}`" for c in commands)
         + ". fastrl: the full env step (physics, observation, reward, auto-reset; float32) on one "
         "CPU device and split over 2 (one per core), each scene stepped as "
-        "its env steps it (leap_cube_reorient with MJX's broad-phase caps, its default). MuJoCo C: "
-        "`mujoco.rollout` with 2 threads on the same scene (float64, physics only), the servo targets "
-        "of random actions.", "",
+        "its env steps it (leap_cube_reorient with MJX's broad-phase caps, its default). EnvPool: "
+        "its C++ port of the same Playground task (observation, reward and auto-reset included) with "
+        "2 threads, at the number of envs (a power of two up to the batch, within half the machine's "
+        "memory) that ran fastest. MuJoCo C: `mujoco.rollout` with 2 threads on the same scene "
+        "(float64, physics only), the servo targets of random actions. `best / EnvPool`: the better "
+        "of fastrl's two columns over EnvPool's rate.", "",
         "| env | scene | batch | physics steps per control step | fastrl | fastrl, 2 devices "
-        "| MuJoCo C rollout, 2 threads | fastrl / MuJoCo C | 2 devices / MuJoCo C | compile s |",
-        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| EnvPool port, 2 threads (envs) | best / EnvPool | MuJoCo C rollout, 2 threads "
+        "| fastrl / MuJoCo C | 2 devices / MuJoCo C | compile s |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]  # fmt: skip
     for r in rows:
         one, two, peer = (r["control_steps_per_s"], r["split_2_devices"]["control_steps_per_s"],
                           r["mujoco_rollout"]["control_steps_per_s"])  # fmt: skip
         skip = r["mujoco_rollout"]["physics_steps_per_control_step"]
-        cells = [r["env"], f"`{r['scene']}`", r["batch"], skip, f"{one:,.0f}", f"{two:,.0f}", f"{peer:,.0f}",
-                 f"{one / peer:.2f}", f"{two / peer:.2f}", f"{r['compile_s']:.1f}"]  # fmt: skip
+        port = r.get("envpool_port")
+        port_cells = (
+            [f"{port['control_steps_per_s']:,.0f} ({port['num_envs']})",
+             f"{max(one, two) / port['control_steps_per_s']:.2f}"]
+            if port else ["not run", ""]
+        )  # fmt: skip
+        ratios = [f"{one / peer:.2f}", f"{two / peer:.2f}", f"{r['compile_s']:.1f}"]
+        cells = [r["env"], f"`{r['scene']}`", r["batch"], skip, f"{one:,.0f}", f"{two:,.0f}", *port_cells,
+                 f"{peer:,.0f}", *ratios]  # fmt: skip
         lines.append("| " + " | ".join(map(str, cells)) + " |")
     return "\n".join(lines)
 
@@ -100,6 +162,7 @@ def main() -> None:
     parser.add_argument("--envs", nargs="*", default=TASKS, help=f"robot tasks (default: {' '.join(TASKS)})")
     parser.add_argument("--batch", type=int, default=1024)
     parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
+    parser.add_argument("--envpool-seconds", type=float, default=5.0, help="timed seconds per EnvPool size")
     parser.add_argument("--out", default=results.RESULTS, help="results folder")
     args = parser.parse_args()
     unknown = sorted(set(args.envs) - set(TASKS))
@@ -110,6 +173,7 @@ def main() -> None:
         row = bench_envs.bench_fastrl(name, args.batch, args.steps)
         row["scene"] = SCENES[name]
         row["mujoco_rollout"] = bench_rollout(name, args.batch, args.steps)
+        row["envpool_port"] = bench_envpool_port(name, args.batch, args.envpool_seconds)
         rows.append(row)
         print(row, flush=True)
     job = {

@@ -9,9 +9,12 @@ jax.jit(jax.vmap(physics.step)) at batch 256 from each env's reset states, zero 
 ``--hlo`` times nothing: it digests XLA's optimised program for one env's step, its instructions
 with names, metadata and numbering stripped and sorted. Equal digests from two checkouts mean the
 change compiled to the same program for that env, so its step cost cannot have moved.
+``--without contact_overflow`` leaves a ``Data`` field out of the digested program (held at the
+reset state's value, and not returned), to compare with a checkout that lacks the field.
 """
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import re
@@ -24,9 +27,16 @@ import fastrl
 from fastrl import envs, physics
 
 
-def program_digest(m, d) -> str:
-    """A digest of the optimised HLO of ``physics.step``: its instructions, names dropped."""
-    text = jax.jit(lambda d: physics.step(m, d)).lower(d).compile().as_text()
+def program_digest(m, d, without: tuple[str, ...] = ()) -> str:
+    """A digest of the optimised HLO of ``physics.step``: its instructions, names dropped; the
+    fields ``without`` neither inputs nor outputs of the program."""
+
+    def fields(d):
+        return {f.name: getattr(d, f.name) for f in dataclasses.fields(d) if f.name not in without}
+
+    text = (
+        jax.jit(lambda rest: fields(physics.step(m, d.replace(**rest)))).lower(fields(d)).compile().as_text()
+    )
     ops = []
     for line in text.splitlines():
         if " = " not in line:
@@ -68,12 +78,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("envs", help="env names, comma-separated (ant,hopper,...)")
     parser.add_argument("--hlo", action="store_true", help="digest each env's compiled step; time nothing")
+    parser.add_argument("--without", nargs="*", default=(), help="--hlo: Data fields left out of the program")
     args = parser.parse_args()
     out = {}
     for name in args.envs.split(","):
         if args.hlo:
             env = envs.make(name)
-            out[name] = program_digest(env.model, env.reset(jax.random.PRNGKey(0)).data)
+            out[name] = program_digest(env.model, env.reset(jax.random.PRNGKey(0)).data, tuple(args.without))
         else:
             out[name] = step_cost(name)
     print(json.dumps(out))

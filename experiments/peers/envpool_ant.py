@@ -7,7 +7,8 @@ Run inside the peer venv (see experiments/peers/setup_peers.sh):
 Uses the synchronous API: every call steps all ``num_envs`` environments (``env.step(actions,
 env_ids)`` with all ids) with fresh uniform random actions in [-1, 1]; EnvPool auto-resets
 finished episodes on their next step, and those reset steps are counted like any other. Throughput
-is ``num_envs * calls / wall seconds`` over ``--seconds`` after ``--warmup`` seconds of stepping.
+is ``num_envs * calls / wall seconds`` over ``--seconds`` after ``--warmup`` seconds of stepping;
+``peak_rss_bytes`` is the process's peak resident memory.
 The model's integrator and timestep are read from the MJCF file that EnvPool loads
 (``<base_path>/mujoco/assets_gym/<xml_file>`` from the env config): Gymnasium's ant.xml, RK4 at
 0.01 s, and frame_skip 5, i.e. 0.05 s per control step.
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import time
 import xml.etree.ElementTree as ET
 
@@ -104,6 +106,7 @@ def main() -> None:
     if "frame_skip" in out:
         out["physics_steps_per_s"] = out["control_steps_per_s"] * out["frame_skip"]
     out.update({"calls": calls, "wall_s": wall, "envpool_version": envpool.__version__})
+    out["peak_rss_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     print(json.dumps(out))
 
 

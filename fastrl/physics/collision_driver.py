@@ -454,43 +454,43 @@ def make_frame(normal: jax.Array, tangent: jax.Array) -> jax.Array:
     return jnp.stack([normal, t1, cross(normal, t1)], axis=-2)
 
 
+def group_contacts(m: Model, d: Data, key, idx: np.ndarray) -> tuple[jax.Array, ...]:
+    """One pair group's candidate contacts: ``(dist, pos, normal, tangent, pair, dropped)``, the
+    first four per pair and candidate, ``pair`` the pair each candidate holds, ``dropped`` the
+    pairs whose bounding spheres overlap that the group's budget left out."""
+    convex = isinstance(key, Convex)
+    fn = gjk.convex_pair(key.types1, key.types2, m.multiccd, key.program) if convex else SUPPORTED[key][0]
+    g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
+    poses = (d.geom_xpos[g1], d.geom_xmat[g1], m.geom_size[g1],
+             d.geom_xpos[g2], d.geom_xmat[g2], m.geom_size[g2])  # fmt: skip
+    extra, axes, static = _shape_args(m, key, idx) if key in SHAPED or convex else ((), (), {})
+    fn = functools.partial(fn, **static) if static else fn
+    args, axes = (*poses, *extra), (0,) * 6 + axes
+    count = candidates_per_pair(m, key, idx)
+    pair = jnp.asarray(np.repeat(idx, count), jnp.int32)
+    dropped = jnp.zeros((), jnp.int32)
+    if is_gjk(key):  # bounding spheres and GJK first
+        out, dropped = _cull(m, d, key, idx, fn, args, axes)
+    elif compacted(m, key, idx):
+        out, chosen, dropped = _broadphase(m, d, idx, fn, args, axes)
+        pair = jnp.repeat(chosen, count)
+    else:
+        out = jax.vmap(fn, axes)(*args)
+    dist, pos, normal, tangent = out
+    return dist.reshape(-1), pos.reshape(-1, 3), normal.reshape(-1, 3), tangent.reshape(-1, 3), pair, dropped
+
+
 def collision(m: Model, d: Data) -> Data:
     """Candidate contacts of every pair: ``contact_dist``, ``contact_pos``, ``contact_frame`` and
     ``contact_pair``; ``contact_overflow``: the pairs the budgets dropped (``Data``)."""
-    dists, poss, normals, tangents, pairs = [], [], [], [], []
-    overflow = jnp.zeros((), jnp.int32)
-    for key, idx in pair_groups(m):
-        convex = isinstance(key, Convex)
-        fn = gjk.convex_pair(key.types1, key.types2, m.multiccd, key.program) if convex else SUPPORTED[key][0]
-        g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
-        poses = (d.geom_xpos[g1], d.geom_xmat[g1], m.geom_size[g1],
-                 d.geom_xpos[g2], d.geom_xmat[g2], m.geom_size[g2])  # fmt: skip
-        extra, axes, static = _shape_args(m, key, idx) if key in SHAPED or convex else ((), (), {})
-        fn = functools.partial(fn, **static) if static else fn
-        count = candidates_per_pair(m, key, idx)
-        pair = jnp.asarray(np.repeat(idx, count), jnp.int32)
-        if is_gjk(key):  # bounding spheres and GJK first
-            out, dropped = _cull(m, d, key, idx, fn, (*poses, *extra), (0,) * 6 + axes)
-            dist, pos, normal, tangent = out
-            overflow = overflow + dropped
-        elif compacted(m, key, idx):
-            out, chosen, dropped = _broadphase(m, d, idx, fn, (*poses, *extra), (0,) * 6 + axes)
-            dist, pos, normal, tangent = out
-            pair = jnp.repeat(chosen, count)
-            overflow = overflow + dropped
-        else:
-            dist, pos, normal, tangent = jax.vmap(fn, (0,) * 6 + axes)(*poses, *extra)
-        dists.append(dist.reshape(-1))
-        poss.append(pos.reshape(-1, 3))
-        normals.append(normal.reshape(-1, 3))
-        tangents.append(tangent.reshape(-1, 3))
-        pairs.append(pair)
-    if not dists:
+    groups = [group_contacts(m, d, key, idx) for key, idx in pair_groups(m)]
+    if not groups:
         return d
+    dist, pos, normal, tangent, pair = (jnp.concatenate([g[i] for g in groups]) for i in range(5))
     return d.replace(
-        contact_dist=jnp.concatenate(dists),
-        contact_pos=jnp.concatenate(poss),
-        contact_frame=make_frame(jnp.concatenate(normals), jnp.concatenate(tangents)),
-        contact_pair=jnp.concatenate(pairs),
-        contact_overflow=overflow.astype(jnp.int32),
+        contact_dist=dist,
+        contact_pos=pos,
+        contact_frame=make_frame(normal, tangent),
+        contact_pair=pair,
+        contact_overflow=sum(g[5] for g in groups).astype(jnp.int32),
     )
