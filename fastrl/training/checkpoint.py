@@ -155,14 +155,19 @@ class Checkpointer:
         level = absl.level
         absl.setLevel(logging.CRITICAL)  # orbax logs each failing writer thread's traceback
         try:
-            with _without_closed_loop_noise():  # a failed save's pending writes print one each
-                self._manager.save(step, args=args, force=True)
-                self._manager.wait_until_finished()
+            with contextlib.ExitStack() as capture:  # a failed save's pending writes print one each
+                capture.enter_context(_without_closed_loop_noise())
+                try:
+                    self._manager.save(step, args=args, force=True)
+                    self._manager.wait_until_finished()
+                except Exception:
+                    # The failed save's writers still in flight fail one by one until orbax is
+                    # closed, each printing an "Event loop is closed" traceback: the capture goes
+                    # on, with no gap, until ``close``.
+                    self._held.enter_context(capture.pop_all())
+                    raise
         except Exception as e:
-            # The failed save's writers still in flight fail one by one until orbax is closed,
-            # each printing an "Event loop is closed" traceback: held back until ``close``.
             self._failed = True
-            self._held.enter_context(_without_closed_loop_noise())
             with contextlib.suppress(Exception):
                 self._manager.wait_until_finished()
             for partial in self.directory.glob(f"{step}.orbax-checkpoint-tmp*"):

@@ -280,3 +280,49 @@ def test_interleaved_closed_loop_tracebacks_are_dropped_and_nothing_else():
     kept = "[fastrl] warning: something the user must see\nValueError: a real error\n"
     assert _drop_loop_closed(noise + kept) == kept
     assert _drop_loop_closed(kept + "\n") == kept + "\n"  # no noise: the text as it was
+
+
+def test_a_failed_saves_late_writer_tracebacks_never_reach_stderr(tmp_path, capfd):
+    """The writers of a failed save go on failing in their own threads, each printing an "Event
+    loop is closed" traceback straight to the stderr descriptor; however they are timed against
+    the save's failure, none reaches stderr, and what fastrl itself prints meanwhile does."""
+    import os
+    import threading
+    import time
+
+    from fastrl.training.checkpoint import Checkpointer, WriteError
+
+    noise = (
+        'Traceback (most recent call last):\n  File "/x/asyncio/base_events.py", line 806, in '
+        "call_soon_threadsafe\n    self._check_closed()\nRuntimeError: Event loop is closed\n"
+    ).encode()
+    ckpt = Checkpointer(tmp_path / "checkpoints")
+    done = threading.Event()
+
+    def writers():  # tracebacks written on and on, across the save's failure and after it
+        while not done.is_set():
+            os.write(2, noise)
+            time.sleep(0.0002)
+
+    class FailingManager:
+        def save(self, *args, **kwargs):
+            threading.Thread(target=writers, daemon=True).start()
+            time.sleep(0.05)
+            raise OSError(28, "No space left on device")
+
+        def wait_until_finished(self):
+            time.sleep(0.05)
+
+        def close(self):
+            done.set()
+            time.sleep(0.01)
+
+    real, ckpt._manager = ckpt._manager, FailingManager()
+    with pytest.raises(WriteError, match="No space left on device"):
+        ckpt.save(1, {"x": np.zeros(2)}, {"config": {}, "env_steps": 0})
+    print("[fastrl] warning: a line the user must see", file=sys.stderr, flush=True)
+    ckpt.close()
+    real.close()
+    err = capfd.readouterr().err
+    assert "Event loop is closed" not in err and "Traceback" not in err, err[:500]
+    assert "a line the user must see" in err
