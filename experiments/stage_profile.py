@@ -306,18 +306,19 @@ def main() -> None:
         parser.error(f"unknown tasks or scenes {unknown}; tasks: {TASKS}, scenes: {SCENES}")
     load_before = os.getloadavg()[0]
     version = results.fastrl_version()
-    rows = [profile_scene(n, args) if "/" in n else profile_task(n, args) for n in names]
-    meta = {
-        "date": results.today(),
-        "machine": results.machine(),
-        "fastrl": version,
-        "command": results.command(),
-        "load_before": round(load_before, 2),
-        "load_after": round(os.getloadavg()[0], 2),
-    }
-    if (pathlib.Path(args.out) / "stage_profile.json").exists():  # earlier rows of other scenes stay
-        rows = [r for r in results.load("stage_profile", args.out)["rows"] if r["name"] not in names] + rows
-    results.save(args.out, "stage_profile", {"meta": meta, "rows": rows}, markdown(rows, meta))
+    path = pathlib.Path(args.out) / "stage_profile.json"
+    rows = [r for r in results.load(path)["rows"] if r["name"] not in names] if path.exists() else []
+    for name in names:  # saved after each, so that a long run keeps what it measured
+        rows.append(profile_scene(name, args) if "/" in name else profile_task(name, args))
+        meta = {
+            "date": results.today(),
+            "machine": results.machine(),
+            "fastrl": version,
+            "command": results.command(),
+            "load_before": round(load_before, 2),
+            "load_after": round(os.getloadavg()[0], 2),
+        }
+        results.save(args.out, "stage_profile", {"meta": meta, "rows": rows}, markdown(rows, meta))
 
 
 if __name__ == "__main__":
