@@ -491,3 +491,20 @@ def test_robot_scene_lean_measures_fewer_iterations_with_and_without_the_caps():
     }  # fmt: skip
     go1 = [label for label, _ in robot_scene_lean.variants(envs.make("go1_joystick"))]
     assert not any("iteration" in label for label in go1)
+
+
+def test_stage_profile_times_every_stage_and_counts_what_touches(tmp_path):
+    subprocess.run(
+        [sys.executable, "-m", "experiments.stage_profile", "--only", "go1_joystick", "--batch", "8",
+         "--warmup", "20", "--repeats", "1", "--out", str(tmp_path)],
+        check=True, cwd=ROOT, timeout=900,
+    )  # fmt: skip
+    (row,) = results.load("stage_profile", tmp_path)["rows"]
+    times, touch = row["times"], row["touching"]
+    assert {"kinematics", "solver", "integrate", "step", "task"} <= set(times)
+    assert all(t > 0 for k, t in times.items() if k != "task"), times
+    narrow = [k for k in times if k.startswith("narrow: ")]
+    assert narrow == ["narrow: " + name for name in touch["groups"]]  # the four feet on the floor
+    (group,) = touch["groups"].values()
+    assert group["pairs"] == 4 and 0 <= group["contacts"] <= 4 and touch["candidates"] == 4
+    assert "| solver |" in (tmp_path / "stage_profile.md").read_text()
