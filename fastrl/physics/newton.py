@@ -46,18 +46,6 @@ from fastrl.physics.types import Data, Model
 MINVAL = 1e-15  # mjMINVAL
 
 
-def _over(x: jax.Array, onehot: jax.Array) -> jax.Array:
-    """``x @ onehot``: the sum of a per-row (or per-dof) quantity over each island, as a product
-    and a reduction that XLA fuses; under ``vmap`` a ``@`` here is a batched dot, which XLA:CPU
-    runs as one tiny matrix product per env (the line search evaluates a dozen of them a pass)."""
-    return jnp.sum(x[..., None] * onehot, axis=-2)
-
-
-def _each(onehot: jax.Array, per_island: jax.Array) -> jax.Array:
-    """``onehot @ per_island``: each row's (or dof's) island's value, fused as ``_over``."""
-    return jnp.sum(onehot * per_island, axis=-1)
-
-
 class _Islands(typing.NamedTuple):
     dof: jax.Array  # (nv, k) one-hot: each constrained dof's island
     rows: tuple[jax.Array, ...]  # per row group of Rows.j (cones: per block), (r, k) one-hot
@@ -65,7 +53,7 @@ class _Islands(typing.NamedTuple):
 
     def per(self, x: jax.Array) -> jax.Array:
         """Sum of a per-dof quantity over each island."""
-        return _over(x, self.dof)
+        return x @ self.dof
 
     def norm(self, x: jax.Array) -> jax.Array:
         return jnp.sqrt(self.per(x * x))
@@ -142,13 +130,13 @@ class _Line(typing.NamedTuple):
                  _inequality(*con, rows.dd, alpha), _equality(*eq, rows.eq_D, alpha)]  # fmt: skip
         parts += [_cone(c, *x, alpha) for c, x in zip(rows.cones, cones, strict=True)]
         for (c, s, u), (_, _, onehot) in zip(parts, (fr, lim, con, eq, *cones), strict=True):
-            cost, d0, d1 = cost + _over(c, onehot), d0 + _over(s, onehot), d1 + _over(u, onehot)
+            cost, d0, d1 = cost + c @ onehot, d0 + s @ onehot, d1 + u @ onehot
         return cost, d0, jnp.where(d1 <= 0, MINVAL, d1)
 
 
 def _friction(rows: Rows, start, v, onehot, alpha):
     """Friction-loss rows: Huber cost (quadratic within ``|x| < R f``, linear beyond)."""
-    x = start + _each(onehot, alpha) * v
+    x = start + (onehot @ alpha) * v
     f, dd = rows.fr_loss, rows.fr_D
     rf = f / jnp.where(dd > 0, dd, 1.0)
 
@@ -171,7 +159,7 @@ def _friction(rows: Rows, start, v, onehot, alpha):
 
 def _inequality(start, v, onehot, dd, alpha):
     """Limit and pyramidal contact rows: ``D x^2 / 2`` while ``x < 0``."""
-    a = _each(onehot, alpha)
+    a = onehot @ alpha
     x = start + a * v
     q0, q1, q2 = 0.5 * dd * start * start, v * dd * start, 0.5 * v * dd * v
     cost0 = jnp.where(start < 0, q0, 0.0)
@@ -181,7 +169,7 @@ def _inequality(start, v, onehot, dd, alpha):
 
 
 def _equality(start, v, onehot, dd, alpha):
-    a = _each(onehot, alpha)
+    a = onehot @ alpha
     q1, q2 = v * dd * start, 0.5 * v * dd * v
     return a * q1 + a * a * q2, 2 * a * q2 + q1, 2 * q2
 
@@ -195,7 +183,7 @@ def _cone_zone(n, tsqr, mu):
 
 def _cone(c, start, v, onehot, alpha):
     """Elliptic-cone blocks (ellipticCostDif and PrimalEval's cone branch)."""
-    a = _each(onehot, alpha)
+    a = onehot @ alpha
     mu, dd = c.mu, c.dd
     q0 = 0.5 * jnp.sum(dd * start * start, -1)
     q1 = jnp.sum(v * dd * start, -1)
@@ -418,14 +406,14 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
 
     def step(carry):
         k, a, res, grad, hess, mgrad, stopped = carry
-        search = -mgrad * _each(isl.dof, (~stopped).astype(a.dtype))
+        search = -mgrad * (isl.dof @ (~stopped).astype(a.dtype))
         line = _line(rows, isl, d, a, res, search)
         alpha, improvement = line_search(line, search, ~stopped, tol * m.ls_tolerance, m.ls_iterations)
         moved = ~stopped & (alpha != 0)
         alpha = jnp.where(moved, alpha, 0.0)
-        a = a + _each(isl.dof, alpha) * search
+        a = a + (isl.dof @ alpha) * search
         js = rows.j(search)
-        res = tuple(r + _each(o, alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
+        res = tuple(r + (o @ alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
         grad, hess = gradient_hessian(rows, d, a, res)
         mgrad = smooth.solve_structured(structure, hess, grad)
         improvement = isl.scale * improvement

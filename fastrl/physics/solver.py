@@ -178,11 +178,9 @@ class Rows(typing.NamedTuple):
         """``J a`` of the friction-loss, limit, scalar contact rows and each cone group."""
         cones = tuple(matvec(c.jac, a) for c in self.cones)
         fric = (
-            jnp.concatenate([a[self.fr_dofs], matvec(self.tf_jac, a)])
-            if self.tf_jac.shape[0]
-            else a[self.fr_dofs]
+            jnp.concatenate([a[self.fr_dofs], self.tf_jac @ a]) if self.tf_jac.shape[0] else a[self.fr_dofs]
         )
-        return (fric, self.lim_sign * a[self.lim_dofs], matvec(self.jac, a), matvec(self.eq_jac, a), *cones)
+        return (fric, self.lim_sign * a[self.lim_dofs], self.jac @ a, self.eq_jac @ a, *cones)
 
     def jar(self, a: jax.Array) -> tuple[jax.Array, ...]:
         """``J a - aref``, split as ``j``."""
@@ -194,9 +192,9 @@ class Rows(typing.NamedTuple):
     ) -> jax.Array:
         """``J^T f`` for row values split as ``j``."""
         nv = self.jac.shape[-1]
-        out = _rows_t(con, self.jac) if self.aref.size else jnp.zeros(nv, fr.dtype)
+        out = con @ self.jac if self.aref.size else jnp.zeros(nv, fr.dtype)
         if self.eq_aref.size:
-            out = out + _rows_t(eq, self.eq_jac)
+            out = out + eq @ self.eq_jac
         for c, f in zip(self.cones, cones, strict=True):
             out = out + jnp.einsum("nd,ndv->v", f, c.jac)
         if self.lim_dofs.size:
@@ -204,7 +202,7 @@ class Rows(typing.NamedTuple):
         if self.fr_dofs.size:
             out = out.at[self.fr_dofs].add(fr[: self.fr_dofs.size])
         if self.tf_jac.shape[0]:
-            out = out + _rows_t(fr[self.fr_dofs.size :], self.tf_jac)
+            out = out + fr[self.fr_dofs.size :] @ self.tf_jac
         return out
 
     def friction_force(self, jf: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -263,12 +261,6 @@ def primal_cost(rows: Rows, d: Data, a: jax.Array) -> jax.Array:
         + jnp.sum(friction)
         + cones
     )
-
-
-def _rows_t(f: jax.Array, jac: jax.Array) -> jax.Array:
-    """``f @ jac`` for (r,) row values and (r, nv) rows, as a product and a reduction over the rows
-    that XLA fuses (a batched dot under ``vmap``: one tiny product per env on XLA:CPU)."""
-    return jnp.sum(f[:, None] * jac, axis=0)
 
 
 def _add_outer(hess: jax.Array, left: jax.Array, right: jax.Array) -> jax.Array:
