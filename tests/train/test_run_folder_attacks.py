@@ -293,9 +293,9 @@ def test_a_failed_saves_late_writer_tracebacks_never_reach_stderr(tmp_path, capf
     from fastrl.training.checkpoint import Checkpointer, WriteError
 
     noise = (
-        'Traceback (most recent call last):\n  File "/x/asyncio/base_events.py", line 806, in '
-        "call_soon_threadsafe\n    self._check_closed()\nRuntimeError: Event loop is closed\n"
-    ).encode()
+        b'Traceback (most recent call last):\n  File "/x/asyncio/base_events.py", line 806, in '
+        b"call_soon_threadsafe\n    self._check_closed()\nRuntimeError: Event loop is closed\n"
+    )
     ckpt = Checkpointer(tmp_path / "checkpoints")
     done = threading.Event()
 
