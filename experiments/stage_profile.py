@@ -44,12 +44,11 @@ import mujoco
 import numpy as np
 
 import fastrl
-from experiments import results
+from experiments import compile_time, results
 from fastrl import envs, physics
 from fastrl.envs import robot_scenes, robots
 from fastrl.physics import collision_driver as cd
-from fastrl.physics import constraint, newton, noslip, passive, smooth, solver, tendon
-from fastrl.physics.actuation import actuation
+from fastrl.physics import constraint, noslip
 from fastrl.physics.forward import euler, forward, has_constraints, implicitfast, rk4
 from fastrl.physics.types import GeomType, Integrator
 
@@ -96,20 +95,8 @@ def group_name(key, idx: np.ndarray) -> str:
 def stages(m: physics.Model) -> dict:
     """Each stage as a function of the data that ``forward`` leaves."""
 
-    def chain(*fns):
-        def run(d):
-            for fn in fns:
-                d = fn(m, d)
-            return d
-
-        return run
-
-    out = {
-        "kinematics": chain(smooth.kinematics),
-        "com/crb": chain(smooth.com_pos, tendon.tendon, smooth.crb),
-        "bias": chain(smooth.com_vel, smooth.rne, tendon.armature, passive.passive, actuation),
-        "smooth solve": lambda d: d.replace(qacc_smooth=smooth.solve_mass(m, d, d.qfrc_smooth)),
-    }
+    whole = compile_time.stages(m)  # the same stage functions as the compile-time breakdown
+    out = {k: whole[k] for k in ("kinematics", "com/crb", "bias", "smooth solve")}
     if has_constraints(m):
         groups = cd.pair_groups(m)
         bounded = [idx for key, idx in groups if cd.is_gjk(key) or cd.compacted(m, key, idx)]
@@ -122,12 +109,12 @@ def stages(m: physics.Model) -> dict:
         slots = constraint.contact_groups(m)
         if slots:
             out["contact selection"] = lambda d: [constraint.select_contacts(m, d, s, n) for _, s, n in slots]
-        out["constraint rows"] = chain(constraint.make_constraint)
-        out["solver"] = chain(newton.solve if m.linesearch == "mujoco" else solver.solve)
+        out["constraint rows"] = whole["constraint"]
+        out["solver"] = whole["solver"]
         if m.noslip_iterations:
-            out["noslip"] = chain(noslip.solve)
+            out["noslip"] = lambda d: noslip.solve(m, d)
     integrate = {Integrator.RK4: rk4, Integrator.IMPLICITFAST: implicitfast}.get(m.integrator, euler)
-    out["integrate"] = chain(integrate)
+    out["integrate"] = lambda d: integrate(m, d)
     out["step"] = lambda d: physics.step(m, d)
     return out
 
