@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 
 from experiments import results
-from fastrl.envs import robot_scenes
+from fastrl.envs.robots import assets
 
 BAR_MM = 10.0
 
@@ -185,7 +185,7 @@ def main() -> None:
     from fastrl import physics  # which scenes fastrl loads (the ones the 1 cm bar applies to)
 
     rows = {}
-    for name, path in robot_scenes.scene_paths().items():
+    for name, path in assets.scene_paths().items():
         if args.scenes and not any(k in name for k in args.scenes):
             continue
         mj = mujoco.MjModel.from_xml_path(str(path))

@@ -34,7 +34,7 @@ import numpy as np
 from experiments import results
 from experiments import robot_coverage as coverage
 from fastrl import physics
-from fastrl.envs import robot_scenes
+from fastrl.envs.robots import assets
 from fastrl.physics import collision_driver
 
 SCENES = (
@@ -222,7 +222,7 @@ def main() -> None:
     parser.add_argument("--out", type=pathlib.Path, default=results.RESULTS)
     args = parser.parse_args()
     names = args.scenes[-1:] if args.quick else args.scenes
-    paths = robot_scenes.scene_paths()
+    paths = assets.scene_paths()
     rows = {n: scene(n, paths[n], args.max_steps) for n in names}
     meta = {
         "date": results.today(),

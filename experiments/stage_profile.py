@@ -3,7 +3,7 @@
     python -m experiments.stage_profile                         # the five robot tasks, three scenes
     python -m experiments.stage_profile --only leap_cube_reorient --batch 256
 
-For each robot task (``fastrl/envs/robots.py``) and full-collision Menagerie scene, float32, at
+For each robot task (``fastrl/envs/robots/``) and full-collision Menagerie scene, float32, at
 ``--batch`` envs (fewer where XLA's plan for the step's scratch memory would exceed 30% of this
 machine's memory): the batch is stepped for ``--warmup`` control steps under uniform random
 actions (scenes: random controls within their ranges from the first keyframe), so that hands
@@ -46,7 +46,8 @@ import numpy as np
 import fastrl
 from experiments import compile_time, results
 from fastrl import envs, physics
-from fastrl.envs import robot_scenes, robots
+from fastrl.envs import robots
+from fastrl.envs.robots import assets
 from fastrl.physics import collision_driver as cd
 from fastrl.physics import constraint, noslip
 from fastrl.physics.forward import euler, forward, has_constraints, implicitfast, rk4
@@ -152,7 +153,7 @@ def task_states(name: str, batch: int, warmup: int, seed: int = 0):
 def scene_states(name: str, batch: int, warmup: int, seed: int = 0):
     """A scene's model, and its batch's data after ``warmup`` steps of random controls held for
     10 steps each, from the first keyframe (or the model's reference pose)."""
-    path = robot_scenes.scene_path(name)
+    path = assets.scene_path(name)
     mj = mujoco.MjModel.from_xml_path(str(path))
     md = mujoco.MjData(mj)
     if mj.nkey:

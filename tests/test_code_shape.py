@@ -131,15 +131,15 @@ def test_importing_fastrl_leaves_the_environment_untouched():
 
 
 # One path per module: the training layer's modules are imported from ``fastrl.training`` only,
-# the robot scenes' locator from ``fastrl.envs``, devices, XLA flags and the compile cache from
-# ``fastrl.runtime``, the tools that look at runs (the scene summary and the learning curve among
-# them) from ``fastrl.tools``, the training command line from ``fastrl.cli``. ``fastrl.train``,
-# ``fastrl.evaluate`` and ``fastrl.report`` are the commands (``python -m fastrl.train``), never
-# imported by code.
+# the robot scenes' locator from ``fastrl.envs.robots.assets``, devices, XLA flags and the compile
+# cache from ``fastrl.runtime``, the tools that look at runs (the scene summary and the learning
+# curve among them) from ``fastrl.tools``, the training command line from ``fastrl.cli``.
+# ``fastrl.train``, ``fastrl.evaluate`` and ``fastrl.report`` are the commands
+# (``python -m fastrl.train``), never imported by code.
 REMOVED_MODULES = {
     f"fastrl.{name}"
     for name in (
-        *("runner", "checkpoint", "config", "policy", "scale", "train", "robot_scenes"),
+        *("runner", "checkpoint", "config", "policy", "scale", "train", "robot_scenes", "envs.robot_scenes"),
         *("devices", "xla_flags", "compile_cache"),
         *("evaluate", "report", "reference", "viewer", "physics.info", "training.curve", "training.train"),
     )
@@ -153,8 +153,8 @@ ENTRY_POINTS = {
 # A dotted name through a removed module, as mock.patch strings, docstrings and scripts spell it;
 # a command's name followed by a dot and a name reaches into the module, alone it names the command.
 REMOVED_DOTTED = re.compile(
-    r"\bfastrl\.(?:(?:runner|checkpoint|config|policy|scale|robot_scenes|devices|xla_flags|compile_cache"
-    r"|reference|viewer|physics\.info|training\.curve|training\.train)\b|(?:train|evaluate|report)\.\w+)"
+    r"\bfastrl\.(?:(?:runner|checkpoint|config|policy|scale|robot_scenes|envs\.robot_scenes|devices|xla_flags"
+    r"|compile_cache|reference|viewer|physics\.info|training\.curve|training\.train)\b|(?:train|evaluate|report)\.\w+)"
 )
 
 

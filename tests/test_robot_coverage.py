@@ -19,15 +19,15 @@ import numpy as np
 import pytest
 
 from experiments import robot_coverage
-from fastrl.envs import robot_scenes
+from fastrl.envs.robots import assets
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCENES = 41  # the count in envpool-assets 0.4.0; a new wheel version that changes it should say so
-PATHS = robot_scenes.scene_paths()
+PATHS = assets.scene_paths()
 
 
 def test_wheels_hold_the_scenes():
-    for package in robot_scenes.WHEELS:
+    for package in assets.WHEELS:
         importlib.import_module(package)
     assert len(PATHS) == SCENES, sorted(PATHS)
     assert sum(n.startswith("menagerie/") for n in PATHS) == 20

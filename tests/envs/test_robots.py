@@ -1,4 +1,4 @@
-"""The real-robot tasks (fastrl/envs/robots.py): API, auto-reset, determinism, MuJoCo C agreement.
+"""The real-robot tasks (fastrl/envs/robots/): API, auto-reset, determinism, MuJoCo C agreement.
 
 Each env's batched reset and step compile once for the module (module-scoped fixtures): a robot
 scene's step takes ~20-30 s to compile on one core.

