@@ -32,7 +32,8 @@ import optax
 from fastrl.agents import normalizer
 from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
-from fastrl.envs.base import Env, State
+from fastrl.envs.base import Env
+from fastrl.envs.episode import State
 from fastrl.physics.dataclass import pytree_dataclass
 
 

@@ -26,7 +26,8 @@ from jax.sharding import Mesh
 from fastrl.agents import normalizer
 from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
-from fastrl.envs.base import Env, State
+from fastrl.envs.base import Env
+from fastrl.envs.episode import State
 from fastrl.physics.dataclass import pytree_dataclass
 from fastrl.runtime.devices import DEVICE_AXIS, over_devices
 

@@ -1,6 +1,7 @@
 """Functional environments with Gymnasium v5 semantics, and a batched Gymnasium vector API."""
 
-from fastrl.envs.base import Env, Randomization, State
+from fastrl.envs.base import Env, Randomization
+from fastrl.envs.episode import State
 from fastrl.envs.registry import env_class, make, names, register
 from fastrl.runtime.devices import batch_mesh, over_devices
 

@@ -25,54 +25,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl import physics
+from fastrl.envs import episode
+from fastrl.envs.episode import State
 from fastrl.physics import Data, Model
-from fastrl.physics.dataclass import pytree_dataclass
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
-
-
-@pytree_dataclass
-class State:
-    """One environment's state between steps (batched: every leaf gains a leading axis).
-
-    Fields:
-      data          physics ``Data`` (after ``mj_step``; kinematics from the last substep's start)
-      obs           (obs_size,) observation of the current episode (the new one after a reset)
-      reward        () reward of the last step (0 right after ``reset``)
-      terminated    () bool, the last step ended the episode by the task's rule or divergence
-      truncated     () bool, the last step hit the time limit
-      final_obs     (obs_size,) observation the last step produced before any auto-reset;
-                    equals ``obs`` when the episode goes on
-      metrics       dict name -> () per-step quantities: each weighted reward term as
-                    ``reward_<term>``, plus env-specific ones (``x_velocity``...) and ``diverged``;
-                    ``contact_overflow`` where the scene's contact budgets can drop contacts:
-                    the most any physics step of this env step dropped (``Data``)
-      episode_return () return of the current episode so far; at a done step, the finished
-                    episode's total (reset on the next step)
-      episode_length () steps of the current episode so far (same convention)
-      params        dict field -> array of per-env randomised model parameters (may be empty)
-      rng           (2,) uint32 key the env draws its next reset from
-      task          dict name -> array of task variables that are not physics (a goal-seeking
-                    env's target); empty for the standard suite
-    """
-
-    data: Data
-    obs: jax.Array
-    reward: jax.Array
-    terminated: jax.Array
-    truncated: jax.Array
-    final_obs: jax.Array
-    metrics: dict
-    episode_return: jax.Array
-    episode_length: jax.Array
-    params: dict
-    rng: jax.Array
-    task: dict = dataclasses.field(default_factory=dict)
-
-    @property
-    def done(self) -> jax.Array:
-        """() bool: the last step ended an episode (terminated or truncated)."""
-        return self.terminated | self.truncated
 
 
 @dataclasses.dataclass(frozen=True)
@@ -351,6 +308,27 @@ class Env:
                 f"{action.shape}; for a batch, jax.vmap(env.step) over states and actions"
             )
         model = self._model(state.params)
+        before, after, overflow = self._physics(model, state, action)
+        task_key = jax.random.fold_in(state.rng, 2)
+        terms, terminated, extra, task = self._reward_task(model, before, after, action, state.task, task_key)
+        reward = sum(terms.values())
+        obs = self._observe_task(model, after, task)
+        obs, reward, terminated, diverged = episode.guard_divergence(
+            after, obs, reward, terminated, self.terminate_when_unhealthy
+        )
+        length, ret, truncated = episode.count(state, reward, self.episode_length)
+        budgeted = physics.contact_budgeted(self.model)  # never silent: what the budgets dropped
+        metrics = episode.metrics(terms, extra, diverged, overflow if budgeted else None, obs.dtype)
+        stepped = State(data=after, obs=obs, reward=reward, terminated=terminated, truncated=truncated,
+                        final_obs=obs, metrics=metrics, episode_return=ret, episode_length=length,
+                        params=state.params, rng=state.rng, task=task)  # fmt: skip
+        fresh, done = self.reset(state.rng), stepped.done
+        return episode.auto_reset(done, stepped, fresh, self._carried_at_reset())
+
+    def _physics(self, model: Model, state: State, action: jax.Array) -> tuple[Data, Data, jax.Array]:
+        """``frame_skip`` physics steps under the action's controls: the data they start from
+        (after the task's ``_before_physics``), the data they end with, and the contacts each
+        physics step's budgets dropped, (frame_skip,)."""
         before = self._before_physics(state.data, state.task)
 
         ctrl = self._control(action, state.task)
@@ -360,46 +338,7 @@ class Env:
             return data, data.contact_overflow
 
         after, overflow = jax.lax.scan(substep, before, None, length=self.frame_skip)
-        task_key = jax.random.fold_in(state.rng, 2)
-        terms, terminated, extra, task = self._reward_task(model, before, after, action, state.task, task_key)
-        reward = sum(terms.values())
-        obs = self._observe_task(model, after, task)
-        diverged = after.diverged | ~jnp.all(jnp.isfinite(obs)) | ~jnp.isfinite(reward)
-        # A diverged env is ended and reset; its NaNs never reach the learner.
-        obs = jnp.where(diverged, 0.0, obs)
-        reward = jnp.where(diverged, 0.0, reward).astype(obs.dtype)
-        terminated = (terminated & self.terminate_when_unhealthy) | diverged
-        prev_done = state.done
-        length = jnp.where(prev_done, 0, state.episode_length) + 1
-        ret = jnp.where(prev_done, 0.0, state.episode_return) + reward
-        truncated = length >= self.episode_length
-        metrics = {f"reward_{k}": jnp.where(diverged, 0.0, v) for k, v in terms.items()}
-        metrics.update({k: jnp.where(diverged, 0.0, v) for k, v in extra.items()})
-        metrics["diverged"] = diverged.astype(obs.dtype)
-        if physics.contact_budgeted(self.model):  # never silent: what the budgets dropped
-            metrics["contact_overflow"] = jnp.max(overflow)
-        metrics = {k: jnp.asarray(v, obs.dtype) for k, v in metrics.items()}
-
-        # Auto-reset, branch-free: draw a new episode and keep it where this one is done.
-        fresh = self.reset(state.rng)
-        done = terminated | truncated
-        pick = lambda new, old: jnp.where(done, new, old)  # noqa: E731
-        carried = self._carried_at_reset()
-        data = after.replace(**{f: pick(getattr(fresh.data, f), getattr(after, f)) for f in carried})
-        return State(
-            data=data,
-            obs=pick(fresh.obs, obs),
-            reward=reward,
-            terminated=terminated,
-            truncated=truncated,
-            final_obs=obs,
-            metrics=metrics,
-            episode_return=ret,
-            episode_length=length,
-            params=jax.tree.map(pick, fresh.params, state.params),
-            rng=jnp.where(done, fresh.rng, jax.random.fold_in(state.rng, 1)),
-            task=jax.tree.map(pick, fresh.task, task),
-        )
+        return before, after, overflow
 
     def _carried_at_reset(self) -> tuple[str, ...]:
         """The ``Data`` fields an auto-reset takes from the new episode: the state, the
@@ -422,8 +361,8 @@ class Env:
                 after, zero_task = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), (data, task))
                 return self._reward_task(model, before, after, action, zero_task, key)
 
-            always = _STATE_FIELDS + _KINEMATICS
-            self._carried = always + tuple(f for f in _fields_read(reward, data) if f not in always)
+            always = episode.STATE_FIELDS + episode.KINEMATICS
+            self._carried = always + tuple(f for f in episode.fields_read(reward, data) if f not in always)
         return self._carried
 
     def metric_names(self) -> list[str]:
@@ -507,23 +446,3 @@ class Env:
     def __repr__(self) -> str:
         cls = type(self).__name__
         return f"{cls}({self.name!r}, frame_skip={self.frame_skip}, episode_length={self.episode_length})"
-
-
-# Data fields by role (``physics.Data``'s docstring): the state a step starts from, and the
-# kinematics, which an auto-reset always carries (cheap, and what viewers and users read).
-_STATE_FIELDS = ("qpos", "qvel", "ctrl", "act", "time", "qfrc_applied", "qacc_warmstart", "mocap_pos",
-                 "mocap_quat", "eq_active", "diverged")  # fmt: skip
-_KINEMATICS = ("xpos", "xquat", "xmat", "xipos", "ximat", "xanchor", "xaxis", "geom_xpos", "geom_xmat",
-               "site_xpos", "site_xmat")  # fmt: skip
-
-
-def _fields_read(fn, data) -> tuple[str, ...]:
-    """The fields of ``data`` (abstract ``Data``) that ``fn(data)`` reads, from its traced
-    program: a field counts as read if any operation or output takes it (so a field passed
-    into a nested loop counts, whether or not the loop uses it)."""
-    paths, treedef = jax.tree_util.tree_flatten_with_path(data)
-    jaxpr = jax.make_jaxpr(lambda *leaves: fn(jax.tree.unflatten(treedef, leaves)))(
-        *(x for _, x in paths)
-    ).jaxpr
-    used = {id(v) for eqn in jaxpr.eqns for v in eqn.invars} | {id(v) for v in jaxpr.outvars}
-    return tuple(path[0].name for (path, _), var in zip(paths, jaxpr.invars, strict=True) if id(var) in used)

@@ -30,7 +30,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from fastrl.envs.base import Env, State
+from fastrl.envs.base import Env
+from fastrl.envs.episode import State
 from fastrl.envs.registry import make
 from fastrl.runtime.devices import DEVICE_AXIS, batch_mesh, over_devices
 

@@ -31,7 +31,8 @@ import mujoco
 import numpy as np
 
 from fastrl import agents, physics
-from fastrl.envs.base import ASSETS, Env, State
+from fastrl.envs.base import ASSETS, Env
+from fastrl.envs.episode import State
 
 
 @dataclasses.dataclass(frozen=True)

@@ -33,7 +33,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from fastrl import agents
 from fastrl.agents.base import Learner
-from fastrl.envs.base import State
+from fastrl.envs.episode import State
 from fastrl.runtime.devices import DEVICE_AXIS, mesh, to_host
 from fastrl.training.config import ConfigError, RunConfig
 
