@@ -132,13 +132,7 @@ def make_window(config: APGConfig, env_step, policy_net, dist, norm):
 def make_apg(config: APGConfig, env: Env, network: NetworkConfig, total_updates: int = 1) -> Learner:
     """Builds APG for ``env``; raises ``UnsuitableEnvError`` for envs without smooth gradients."""
     del total_updates
-    if not env.smooth_gradients and not config.allow_unsuitable:
-        raise UnsuitableEnvError(
-            f"APG differentiates the return through the simulator, and on '{env.name}' "
-            f"{env.gradient_note or 'contacts make those gradients discontinuous and explosive'}; "
-            "it would waste your time. Use algo=ppo or algo=sac, or set algo.allow_unsuitable=true "
-            "to try anyway."
-        )
+    _check_suitable(config, env)
     obs_size, nu = env.observation_size, env.action_size
     low, high = (jnp.asarray(b) for b in env.action_bounds)
     dist = TanhGaussian(low, high)
@@ -194,3 +188,15 @@ def make_apg(config: APGConfig, env: Env, network: NetworkConfig, total_updates:
     return Learner(init=init, update=update, policy_params=policy_params, act=act,
                    env_steps_per_update=config.num_envs * config.horizon,
                    num_envs=config.num_envs)  # fmt: skip
+
+
+def _check_suitable(config: APGConfig, env: Env) -> None:
+    """Raises ``UnsuitableEnvError`` for an env without smooth gradients (unless
+    ``config.allow_unsuitable``), saying why and what to use instead."""
+    if not env.smooth_gradients and not config.allow_unsuitable:
+        raise UnsuitableEnvError(
+            f"APG differentiates the return through the simulator, and on '{env.name}' "
+            f"{env.gradient_note or 'contacts make those gradients discontinuous and explosive'}; "
+            "it would waste your time. Use algo=ppo or algo=sac, or set algo.allow_unsuitable=true "
+            "to try anyway."
+        )

@@ -100,6 +100,7 @@ def make_es(config: ESConfig, env: Env, network: NetworkConfig, total_updates: i
     pop = config.population_size
 
     norm = observation_normalizer(config.normalize_observations)
+    episode = _episode_fn(env, policy_net, dist, norm, unravel)
 
     def init(key: jax.Array) -> ESState:
         k_pi, k_rng = jax.random.split(key)
@@ -107,24 +108,6 @@ def make_es(config: ESConfig, env: Env, network: NetworkConfig, total_updates: i
         zero = jnp.zeros((), jnp.int32)
         return ESState(theta=theta, opt_state=optimizer.init(theta), obs_stats=normalizer.init(obs_size),
                        rng=k_rng, env_steps=zero, updates=zero)  # fmt: skip
-
-    def episode(theta, stats, key):
-        """Return of one deterministic episode, and the moments of the observations visited."""
-        params = unravel(theta)
-        state = env.reset(key)
-
-        def one(carry, _):
-            s, ret, alive, n, total, sq = carry
-            a = dist.postprocess(dist.mode_raw(policy_net.apply(params, norm(stats, s.obs))))
-            w = alive.astype(s.obs.dtype)
-            n, total, sq = n + w, total + w * s.obs, sq + w * s.obs**2
-            nxt = env.step(s, a)
-            return (nxt, ret + w * nxt.reward, alive & ~nxt.done, n, total, sq), None
-
-        z = jnp.zeros(obs_size)
-        init = (state, jnp.zeros(()), jnp.ones((), bool), jnp.zeros(()), z, z)
-        (_, ret, _, n, total, sq), _ = jax.lax.scan(one, init, None, length=horizon)
-        return ret, (n, total, sq)
 
     def update(state: ESState) -> tuple[ESState, dict]:
         rng, k_eps, k_env = jax.random.split(state.rng, 3)
@@ -134,19 +117,12 @@ def make_es(config: ESConfig, env: Env, network: NetworkConfig, total_updates: i
         returns, (n, total, sq) = jax.vmap(episode, in_axes=(0, None, 0))(
             thetas, state.obs_stats, jnp.concatenate([keys, keys])
         )
-        if config.fitness_shaping == "centered_rank":
-            fitness = centered_ranks(returns)
-        else:
-            fitness = (returns - returns.mean()) / (returns.std() + 1e-8)
-        grad = es_gradient(fitness, eps, config.sigma) - config.weight_decay * state.theta
+        grad = es_gradient(_fitness(config, returns), eps, config.sigma) - config.weight_decay * state.theta
         upd, opt_state = optimizer.update(-grad, state.opt_state, state.theta)
         theta = optax.apply_updates(state.theta, upd)
         stats = state.obs_stats
         if config.normalize_observations:
-            count = jnp.sum(n)
-            mean = jnp.sum(total, 0) / jnp.maximum(count, 1.0)
-            m2 = jnp.sum(sq, 0) - count * mean**2
-            stats = normalizer.combine(stats, count, mean, jnp.maximum(m2, 0.0))
+            stats = _visited_stats(stats, n, total, sq)
         metrics = {
             "train/episode_return_sum": jnp.sum(returns),
             "train/episodes": jnp.asarray(pop, jnp.float32),
@@ -164,3 +140,45 @@ def make_es(config: ESConfig, env: Env, network: NetworkConfig, total_updates: i
 
     return Learner(init=init, update=update, policy_params=policy_params, act=act,
                    env_steps_per_update=pop * horizon)  # fmt: skip
+
+
+def _episode_fn(env: Env, policy_net: MLP, dist: TanhGaussian, norm, unravel):
+    """``episode(theta, stats, key)``: the return of one deterministic episode of the policy with
+    flat parameters ``theta`` (``env.episode_length`` steps, masked after it ends), and the
+    moments (count, sum, sum of squares) of the observations it visited."""
+    horizon, obs_size = env.episode_length, env.observation_size
+
+    def episode(theta, stats, key):
+        params = unravel(theta)
+        state = env.reset(key)
+
+        def one(carry, _):
+            s, ret, alive, n, total, sq = carry
+            a = dist.postprocess(dist.mode_raw(policy_net.apply(params, norm(stats, s.obs))))
+            w = alive.astype(s.obs.dtype)
+            n, total, sq = n + w, total + w * s.obs, sq + w * s.obs**2
+            nxt = env.step(s, a)
+            return (nxt, ret + w * nxt.reward, alive & ~nxt.done, n, total, sq), None
+
+        z = jnp.zeros(obs_size)
+        init = (state, jnp.zeros(()), jnp.ones((), bool), jnp.zeros(()), z, z)
+        (_, ret, _, n, total, sq), _ = jax.lax.scan(one, init, None, length=horizon)
+        return ret, (n, total, sq)
+
+    return episode
+
+
+def _fitness(config: ESConfig, returns: jax.Array) -> jax.Array:
+    """(pop,) the returns shaped as ``config.fitness_shaping`` says: centred ranks or z-scores."""
+    if config.fitness_shaping == "centered_rank":
+        return centered_ranks(returns)
+    return (returns - returns.mean()) / (returns.std() + 1e-8)
+
+
+def _visited_stats(stats, n: jax.Array, total: jax.Array, sq: jax.Array):
+    """The observation statistics updated with every member's visited observations: ``n`` (pop,)
+    counts, ``total`` and ``sq`` (pop, obs_size) sums and sums of squares."""
+    count = jnp.sum(n)
+    mean = jnp.sum(total, 0) / jnp.maximum(count, 1.0)
+    m2 = jnp.sum(sq, 0) - count * mean**2
+    return normalizer.combine(stats, count, mean, jnp.maximum(m2, 0.0))

@@ -227,19 +227,7 @@ def make_ppo(
     rollout = _make_rollout(config, p)
     sgd = _make_sgd(config, p, _make_minibatch_grads(config, p, mesh), env.action_size)
 
-    def init(key: jax.Array) -> PPOState:
-        k_pol, k_val, k_env, k_rng = jax.random.split(key, 4)
-        dummy = jnp.zeros((1, obs_size))
-        params = {
-            "policy": p.policy_net.init(k_pol, dummy[:, : p.policy_obs]),
-            "value": p.value_net.init(k_val, dummy),
-        }
-        env_state = p.env_reset(jax.random.split(k_env, config.num_envs))
-        zero = jnp.zeros((), jnp.int32)
-        return PPOState(
-            params=params, opt_state=p.optimizer.init(params), obs_stats=normalizer.init(obs_size),
-            env_state=env_state, rng=k_rng, env_steps=zero, updates=zero,
-        )  # fmt: skip
+    init = _make_init(config, p, obs_size)
 
     def update(state: PPOState) -> tuple[PPOState, dict]:
         rng, k_roll, k_sgd = jax.random.split(state.rng, 3)
@@ -266,6 +254,27 @@ def make_ppo(
         init=init, update=update, policy_params=policy_params, act=act,
         env_steps_per_update=config.batch_size, num_envs=config.num_envs,
     )  # fmt: skip
+
+
+def _make_init(config: PPOConfig, p: _Parts, obs_size: int):
+    """``init(key) -> PPOState``: fresh policy and value networks, optimiser state and
+    observation statistics, and ``num_envs`` new episodes."""
+
+    def init(key: jax.Array) -> PPOState:
+        k_pol, k_val, k_env, k_rng = jax.random.split(key, 4)
+        dummy = jnp.zeros((1, obs_size))
+        params = {
+            "policy": p.policy_net.init(k_pol, dummy[:, : p.policy_obs]),
+            "value": p.value_net.init(k_val, dummy),
+        }
+        env_state = p.env_reset(jax.random.split(k_env, config.num_envs))
+        zero = jnp.zeros((), jnp.int32)
+        return PPOState(
+            params=params, opt_state=p.optimizer.init(params), obs_stats=normalizer.init(obs_size),
+            env_state=env_state, rng=k_rng, env_steps=zero, updates=zero,
+        )  # fmt: skip
+
+    return init
 
 
 def _parts(
