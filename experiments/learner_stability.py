@@ -8,7 +8,7 @@
 For each learner and each batch size, ONE training program holds every learning rate x seed as
 independent agents (``train.vmap_sweep`` and ``train.num_seeds``, ``fastrl/training/scale.py``); batch
 sizes change shapes, so each is its own program. The runner itself classifies every agent
-(``fastrl/training/runner.py``):
+(``fastrl/training/progress.py``):
 
 * **diverged**: a loss became non-finite (the runner flags the agent, ``train/diverged``, and
   never checkpoints a batch whose agents all diverged);

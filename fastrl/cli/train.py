@@ -374,7 +374,7 @@ def main(cfg: DictConfig) -> float | None:
     failed = None
     try:
         summary = run(cfg, split_cpu=True, overrides=list(hc.overrides.task))
-    except (ConfigError, CheckpointError, runner.RunDirError) as e:
+    except (ConfigError, CheckpointError, files.RunDirError) as e:
         print(f"[fastrl] error: {e}", file=sys.stderr)
         sys.exit(2)
     except WriteError as e:

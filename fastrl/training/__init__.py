@@ -4,7 +4,11 @@
 - ``scale``: agent batches in one program (seeds, ``vmap_sweep``) and the state's device layout.
 - ``checkpoint``: the whole training state with orbax, plus the resolved config.
 - ``runner``: the host loop over compiled chunks (``train``), calling the ``Callback`` objects
-  its caller hands it.
+  its caller hands it; its pieces: ``run_setup`` (env, agents, learner, layout), ``start`` (the
+  folder's lock, a fresh or restored state), ``chunk`` (the compiled chunk and its size),
+  ``progress`` (where the run stands: evaluation, collapse, divergence, the decision to stop),
+  ``outputs`` (rows, progress line, TensorBoard, metrics.csv) and ``signals`` (Ctrl-C and
+  friends).
 - ``files``: what a run writes into its folder, never through a link, whole or not at all.
 - ``policy``: trained policies from run folders (``load_policy``, ``load_run``).
 

@@ -154,14 +154,15 @@ def test_max_seconds_stops_the_run_on_time_with_a_checkpoint(tmp_path, capsys):
 
 
 def test_a_time_limit_shortens_the_chunk_that_reaches_it():
-    from fastrl.training import runner
+    from fastrl.training.chunk import ChunkSizer
+    from fastrl.training.progress import Clock, Progress
 
-    sizer = runner._ChunkSizer.__new__(runner._ChunkSizer)
+    sizer = ChunkSizer.__new__(ChunkSizer)
     sizer.fixed, sizer.seconds, sizer.total, sizer.per_update = None, 10.0, 1000, 0.5
-    progress = runner._Progress.fresh(1)
-    clock = runner._Clock(None)
+    progress = Progress.fresh(1)
+    clock = Clock(None)
     assert sizer.next(progress, clock) == 20  # ~10 s of 0.5 s updates
-    clock = runner._Clock(3.2)
+    clock = Clock(3.2)
     assert sizer.next(progress, clock) in (6, 7)  # what is left of 3.2 s, at 0.5 s an update
     clock.start -= 10
     assert clock.out() and sizer.next(progress, clock) == 1
@@ -255,7 +256,7 @@ def test_dropped_contacts_are_logged_and_warned_about_once(tmp_path, capsys):
 
 
 def test_collapse_watch_flags_a_return_that_falls_back():
-    from fastrl.training.runner import CollapseWatch
+    from fastrl.training.progress import CollapseWatch
 
     w = CollapseWatch(2)
     # Agent 0 learns (10 -> 100) then falls to 40: more than half the gain lost.
@@ -426,12 +427,12 @@ def test_cli_xla_flags_per_learner(monkeypatch):
 
 
 def test_progress_line_says_when_no_training_episode_has_ended_instead_of_printing_nan():
-    from fastrl.training.runner import _progress
+    from fastrl.training.outputs import progress_line
 
     row = {"env_steps": 20480, "perf/env_steps_per_s": 1600.0}
-    waiting = _progress(row, 10_000_000, 13.0, float("nan"))
+    waiting = progress_line(row, 10_000_000, 13.0, float("nan"))
     assert "no episode ended yet" in waiting and "nan" not in waiting
-    assert "train return    123.46" in _progress(row, 10_000_000, 13.0, 123.456)
+    assert "train return    123.46" in progress_line(row, 10_000_000, 13.0, 123.456)
 
 
 def test_a_run_trained_with_a_training_aid_loads_and_scores_the_task(tmp_path):

@@ -21,8 +21,9 @@ from fastrl.cli.train import run
 from fastrl.tools import evaluate
 from fastrl.training.checkpoint import CheckpointError
 from fastrl.training.config import ConfigError
+from fastrl.training.files import RunDirError
 from fastrl.training.policy import load_policy, load_run
-from fastrl.training.runner import RunDirError, RunDirLock
+from fastrl.training.start import RunDirLock
 
 from .test_front_door import QUICK, compose_cfg
 

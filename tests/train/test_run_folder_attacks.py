@@ -22,7 +22,8 @@ from fastrl.cli.train import resumed_config, run
 from fastrl.training import runner
 from fastrl.training.checkpoint import Checkpointer
 from fastrl.training.config import ConfigError
-from fastrl.training.runner import RunDirError
+from fastrl.training.files import RunDirError
+from fastrl.training.signals import StopFlag
 
 from .test_front_door import QUICK, QUICK_RESUME, _weights_of, compose_cfg, typed
 from .test_reliability import QUICK_CLI, _env
@@ -195,7 +196,7 @@ def _resume_quick(run_dir: Path) -> dict:
 
 
 def test_a_second_signal_waits_for_a_save_in_flight_and_aborts_otherwise():
-    with runner._StopFlag() as stop:
+    with StopFlag() as stop:
         os.kill(os.getpid(), signal.SIGHUP)
         assert stop.set and stop.name == "SIGHUP"
         with stop.saving():
