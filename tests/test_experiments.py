@@ -508,3 +508,15 @@ def test_stage_profile_times_every_stage_and_counts_what_touches(tmp_path):
     (group,) = touch["groups"].values()
     assert group["pairs"] == 4 and 0 <= group["contacts"] <= 4 and touch["candidates"] == 4
     assert "| solver |" in (tmp_path / "stage_profile.md").read_text()
+
+
+def test_device_split_times_the_step_on_each_device_count(tmp_path):
+    subprocess.run(
+        [sys.executable, "-m", "experiments.device_split", "hopper", "--batch", "8", "--devices", "1", "2",
+         "--out", str(tmp_path)],
+        check=True, cwd=ROOT, timeout=600,
+    )  # fmt: skip
+    rows = results.load("device_split", tmp_path)["rows"]
+    assert [(r["env"], r["devices"], r["batch"]) for r in rows] == [("hopper", 1, 8), ("hopper", 2, 8)]
+    assert all(r["control_steps_per_s"] > 0 and r["compile_s"] > 0 for r in rows)
+    assert "| hopper | 8 | 2 |" in (tmp_path / "device_split.md").read_text()

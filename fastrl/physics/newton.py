@@ -377,7 +377,7 @@ def _solve_jvp(primals, tangents):
 
     def newton_step(m, d):
         rows = make_rows(m, d)
-        grad, hess = gradient_hessian(rows, d, a, rows.jar(a))
+        grad, hess = gradient_hessian(rows, d, a, rows.jar(a), smooth.dense_solver(structure) is not None)
         return finish(rows, d, a - smooth.solve_structured(structure, hess, grad))
 
     _, tangent = jax.jvp(newton_step, primals, tangents)
@@ -395,8 +395,9 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
     a = jnp.where(primal_cost(rows, d, warm) > primal_cost(rows, d, d.qacc_smooth), d.qacc_smooth, warm)
     a = jnp.where(constrained, a, d.qacc_smooth)
     structure = hessian_structure(m)
+    dense = smooth.dense_solver(structure) is not None
     res = rows.jar(a)
-    grad, hess = gradient_hessian(rows, d, a, res)
+    grad, hess = gradient_hessian(rows, d, a, res, dense)
     real = isl.scale > 0
     gradient_ok = isl.scale * isl.norm(grad) < tol
     gap = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * smooth.solve(m, d.qM, grad))) < tol
@@ -414,7 +415,7 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
         a = a + (isl.dof @ alpha) * search
         js = rows.j(search)
         res = tuple(r + (o @ alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
-        grad, hess = gradient_hessian(rows, d, a, res)
+        grad, hess = gradient_hessian(rows, d, a, res, dense)
         mgrad = smooth.solve_structured(structure, hess, grad)
         improvement = isl.scale * improvement
         gradient = isl.scale * isl.norm(grad)
