@@ -56,9 +56,13 @@ CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 def register_defaults() -> None:
     """Stores the config dataclasses' defaults in Hydra's ConfigStore, as the configs that
     conf/ extends: ``dataclass/<section>`` (``dataclass/run``: ``seed``, ``init_from``) and
-    ``dataclass/algo/<learner>``. A default is written once, in its dataclass; a conf/ file
-    holds only what differs, and every key stays overridable as ``section.key=value``."""
+    ``dataclass/algo/<learner>``; and the ``env`` group, one option per registered env (its
+    name and options, ``envs.options``). A default is written once, in its dataclass or
+    constructor; a conf/ file holds only what differs, and every key stays overridable as
+    ``section.key=value``."""
     store = ConfigStore.instance()
+    for name in envs.names():
+        store.store(group="env", name=name, node={"name": name, "options": envs.options(name)})
     store.store(group="dataclass", name="run", node=defaults(RunConfig))
     named = {"name": "???"}  # Hydra's mandatory value: the file that extends it names the env or learner
     for section, cls in SECTIONS.items():

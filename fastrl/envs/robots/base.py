@@ -73,8 +73,8 @@ class JoystickTask(RobotTask):
     command, or to drive it in the viewer. ``observation_noise`` scales the observation noise
     (0: none)."""
 
-    def __init__(self, *, command=None, observation_noise: float = 1.0, **kwargs):
-        """Arguments as ``RobotTask``'s, and ``command`` and ``observation_noise`` above."""
+    def __init__(self, *, observation_noise: float = 1.0, command=None, **kwargs):
+        """Arguments as ``RobotTask``'s, and ``observation_noise`` and ``command`` above."""
         super().__init__(**kwargs)
         self.observation_noise = float(observation_noise)
         if command is not None:
