@@ -31,7 +31,7 @@ from omegaconf.errors import OmegaConfBaseException
 from fastrl import agents, envs
 from fastrl.runtime import compile_cache, xla_flags
 from fastrl.tools import callbacks
-from fastrl.training import files, runner
+from fastrl.training import files, layout, runner
 from fastrl.training.checkpoint import CHECKPOINT_DIR, CheckpointError
 from fastrl.training.config import SECTIONS, ConfigError, RunConfig, defaults, identity_diff
 from fastrl.training.files import WriteError
@@ -270,38 +270,20 @@ def init_distributed() -> None:
 
 
 def cpu_devices(rc: RunConfig, cores: int) -> int:
-    """How many XLA CPU devices to give a run on a host with ``cores`` cores.
-
-    XLA:CPU runs one program's operations on a thread pool, but the physics step is thousands
-    of small fused loops that keep only about 1.45 of 2 cores busy (the Ant's step at batch
-    1024); split over 2 devices, each device's copy runs on its own core (2.07x one core).
-    Learners that split their own work (PPO: env slices and minibatch halves, see
-    ``scale.learner_splits``) get one device per core, as many as divide the env batch and the
-    minibatch; others, and agent batches, keep one device (XLA's automatic layout ran PPO's
-    gradients in full on each device, so it would not be faster). ``FASTRL_CPU_DEVICES=N``
-    overrides, and an ``XLA_FLAGS`` that sets the device count is left alone. Envs whose step
-    runs slower split than on one device (``Env.splits_over_devices``: three of the robot tasks,
-    measured in ``robot_throughput.md``) keep one device.
-    """
+    """How many XLA CPU devices to give a run on a host with ``cores`` cores: the layout's
+    choice (``fastrl.training.layout.cpu_devices``), unless ``FASTRL_CPU_DEVICES=N`` says."""
     if "FASTRL_CPU_DEVICES" in os.environ:
         value = os.environ["FASTRL_CPU_DEVICES"]
         if not value.isdigit() or int(value) < 1:
             raise ConfigError(f"FASTRL_CPU_DEVICES={value!r} should be a positive integer")
         return int(value)
-    if rc.train.num_seeds > 1 or rc.train.vmap_sweep or not agents.splits_over_devices(rc.algo_name):
-        return 1
-    if not envs.env_class(rc.env.name).splits_over_devices:
-        return 1
-    n = max(1, cores)
-    while n > 1 and not agents.splits_evenly(rc.algo_name, rc.algo, n):
-        n -= 1
-    return n
+    return layout.cpu_devices(rc, cores)
 
 
 def _set_cpu_flags(rc: RunConfig) -> None:
     """Sets the CPU device count (``cpu_devices``) and fastrl's XLA:CPU flags for this learner
     (``xla_flags.apply``) while JAX has not started a backend yet. Whatever the user's
-    ``XLA_FLAGS`` sets is left as it is."""
+    ``XLA_FLAGS`` sets, the device count included, is left as it is."""
     named = xla_flags.names(os.environ.get("XLA_FLAGS", ""))
     devices = None if xla_flags.DEVICE_FLAG in named else cpu_devices(rc, len(os.sched_getaffinity(0)))
     xla_flags.apply(devices, rc.algo_name)

@@ -103,7 +103,8 @@ class Env:
     # contact slots (``physics.load_mjcf(nconmax=...)``); None: the scene's or the loader's rule
     nconmax: int | None = None
     # Whether the training command line may split this env's batch over one CPU device per core
-    # (``fastrl.cli.train.cpu_devices``); False where the step runs slower split than on one device.
+    # (``fastrl.training.layout.cpu_devices``); False where the step runs slower split than on one
+    # device.
     splits_over_devices: bool = True
     # Whether gradients of the return through the physics are informative (smooth dynamics and
     # rewards); analytic policy gradients refuse envs without, explaining ``gradient_note``.

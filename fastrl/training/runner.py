@@ -35,7 +35,7 @@ import numpy as np
 
 from fastrl.agents.base import Learner
 from fastrl.runtime import devices
-from fastrl.training import files, policy, scale
+from fastrl.training import files, layout, policy
 from fastrl.training.checkpoint import Checkpointer, quiet_library_logs
 from fastrl.training.chunk import ChunkSizer, Program, compile_chunk
 from fastrl.training.config import RunConfig
@@ -258,7 +258,7 @@ def _announce_start(setup: Setup, program: Program, run_dir: Path) -> None:
         size = f"{setup.total_updates:,d} {size} in chunks of ~{cfg.train.chunk_seconds:g}s"
     print(
         f"[fastrl] {cfg.env.name} / {cfg.algo_name}: {size}; chunk compiled in "
-        f"{program.compile_s:.1f}s ({program.note}) on {scale.describe(setup.shardings, setup.mesh)}; "
+        f"{program.compile_s:.1f}s ({program.note}) on {layout.describe(setup.shardings, setup.mesh)}; "
         f"run dir {run_dir}"
     )
 
