@@ -140,10 +140,13 @@ def run_learner(
     """The learner a run trains and the key its ``init`` takes.
 
     A batch of agents is ``batch_learner`` with ``init_keys``; a single run (a batch of one,
-    whose state has no agent axis) is the learner itself with ``PRNGKey(seed)``, splitting its
-    own work over ``learner_mesh`` when given (``fastrl.training.layout.learner_mesh``).
+    whose state has no agent axis) is its agent's learner (a ``vmap_sweep`` of one value sets
+    that value) with ``PRNGKey(seed)``, splitting its own work over ``learner_mesh`` when given
+    (``fastrl.training.layout.learner_mesh``).
     """
     if len(specs) > 1:
         return batch_learner(cfg, specs, env, total_updates), init_keys(specs)
-    learner = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, total_updates, mesh=learner_mesh)
-    return learner, jax.random.PRNGKey(cfg.seed)
+    (one,) = specs
+    algo = one.config.algo
+    learner = agents.make_learner(cfg.algo_name, algo, env, cfg.network, total_updates, mesh=learner_mesh)
+    return learner, jax.random.PRNGKey(one.seed)
