@@ -115,15 +115,16 @@ def test_resume_2_plus_2_chunks_equals_4_chunks_bit_for_bit(tmp_path):
 
 
 def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path, capsys):
-    def interrupt(chunk, row):
-        if chunk == 1:
-            os.kill(os.getpid(), signal.SIGINT)
+    from fastrl.training import Callback, Evaluation, runner
 
-    from fastrl.training import runner
+    class Interrupt(Callback):
+        def on_chunk(self, run, chunk):
+            if chunk.index == 1:
+                os.kill(os.getpid(), signal.SIGINT)
 
     cfg = compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}"])
     rc = typed(QUICK_RESUME)
-    out = runner.train(rc, tmp_path, on_chunk=interrupt)
+    out = runner.train(rc, tmp_path, callbacks=[Evaluation(), Interrupt()])
     assert out["status"] == "stopped" and out["chunks"] == 1 and out["interrupted"]
     assert (tmp_path / "checkpoints" / "1").is_dir()
     # the stop says how to continue (and the command line exits 130, the shell's Ctrl-C code)
@@ -132,6 +133,19 @@ def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path, capsys):
         f"fastrl.train resume={tmp_path}" in capsys.readouterr().out
     )
     del cfg
+
+
+def test_evaluation_is_a_callback_the_command_line_hands_the_runner(tmp_path):
+    """The runner evaluates through its ``Evaluation`` callback: the default, the command line's
+    first; a run whose callbacks have none cannot stop at an evaluation return, and is refused
+    before anything is written."""
+    from fastrl.tools import callbacks
+    from fastrl.training import Evaluation, runner
+
+    assert isinstance(callbacks.standard()[0], Evaluation)
+    with pytest.raises(ConfigError, match="stop_at_return.*no Evaluation is among the callbacks"):
+        runner.train(typed([*QUICK, "train.stop_at_return=100"]), tmp_path / "run", callbacks=[])
+    assert not (tmp_path / "run").exists()
 
 
 def test_max_seconds_stops_the_run_on_time_with_a_checkpoint(tmp_path, capsys):

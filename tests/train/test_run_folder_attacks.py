@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from fastrl.cli.train import resumed_config, run
-from fastrl.training import runner
+from fastrl.training import Callback, Evaluation, runner
 from fastrl.training.checkpoint import Checkpointer
 from fastrl.training.config import ConfigError
 from fastrl.training.files import RunDirError
@@ -173,13 +173,14 @@ def test_a_damaged_config_json_resumes_with_the_checkpoints_config_on_the_same_d
 
 
 def test_sigterm_stops_after_the_chunk_saves_and_resumes_bit_for_bit(tmp_path, capsys):
-    def terminate(chunk, row):
-        if chunk == 1:
-            os.kill(os.getpid(), signal.SIGTERM)
+    class Terminate(Callback):
+        def on_chunk(self, run, chunk):
+            if chunk.index == 1:
+                os.kill(os.getpid(), signal.SIGTERM)
 
     split, full = tmp_path / "split", tmp_path / "full"
     handler = signal.getsignal(signal.SIGTERM)
-    out = runner.train(typed(QUICK_RESUME), split, on_chunk=terminate)
+    out = runner.train(typed(QUICK_RESUME), split, callbacks=[Evaluation(), Terminate()])
     assert out["status"] == "stopped" and out["chunks"] == 1 and out["signal"] == signal.SIGTERM
     said = capsys.readouterr().out
     assert "stopped by SIGTERM after chunk 1 of 4, checkpoint saved" in said
