@@ -42,7 +42,7 @@ def worker(overrides: list[str], run_dir: str) -> None:
     from omegaconf import OmegaConf
 
     import fastrl
-    from fastrl.cli.train import CONF_DIR
+    from fastrl.cli.conf import CONF_DIR
     from fastrl.training import Callback, Evaluation, runner
     from fastrl.training.config import RunConfig
 
@@ -67,7 +67,7 @@ def worker(overrides: list[str], run_dir: str) -> None:
 def _steps_per_update(overrides: list[str]) -> int:
     from hydra import compose, initialize_config_dir
 
-    from fastrl.cli.train import CONF_DIR
+    from fastrl.cli.conf import CONF_DIR
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
         algo = compose("train", overrides=[*overrides, "run_dir=/unused"]).algo
@@ -77,7 +77,7 @@ def _steps_per_update(overrides: list[str]) -> int:
 def _total_env_steps(overrides: list[str]) -> int:
     from hydra import compose, initialize_config_dir
 
-    from fastrl.cli.train import CONF_DIR
+    from fastrl.cli.conf import CONF_DIR
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
         return int(compose("train", overrides=[*overrides, "run_dir=/unused"]).train.total_env_steps)

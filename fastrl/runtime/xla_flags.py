@@ -3,7 +3,7 @@
 XLA reads ``XLA_FLAGS`` once, when the first backend starts, so these must be in the environment
 before any JAX computation. Importing fastrl sets nothing: the command-line entry points call
 ``apply()`` (``python -m fastrl.train`` with the CPU device count and the learner, in
-``fastrl.cli.train._set_cpu_flags``), and a library user opts in with
+``fastrl.cli.train``), and a library user opts in with
 ``fastrl.use_recommended_xla_flags()``. A flag that ``XLA_FLAGS`` already names is left as the
 user set it, and ``FASTRL_XLA_FLAGS=0`` turns the defaults off altogether.
 

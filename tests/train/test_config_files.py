@@ -9,7 +9,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from fastrl import agents, envs
-from fastrl.cli.train import CONF_DIR
+from fastrl.cli.conf import CONF_DIR
 from fastrl.training.config import SECTIONS, RunConfig, defaults
 
 CONF = Path(CONF_DIR)

@@ -14,7 +14,8 @@ from hydra.errors import MissingConfigException
 
 from fastrl import agents, envs
 from fastrl.agents.ppo import gae
-from fastrl.cli.train import CONF_DIR, run
+from fastrl.cli.conf import CONF_DIR
+from fastrl.cli.train import run
 from fastrl.training.checkpoint import CheckpointError
 from fastrl.training.config import ConfigError, RunConfig
 

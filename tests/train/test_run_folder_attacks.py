@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fastrl.cli.train import resumed_config, run
+from fastrl.cli.resume import resumed_config
+from fastrl.cli.train import run
 from fastrl.training import Callback, Evaluation, runner
 from fastrl.training.checkpoint import Checkpointer
 from fastrl.training.config import ConfigError
