@@ -4,7 +4,7 @@
 ``unroll_length`` steps of ``num_envs`` environments (a ``lax.scan`` over ``vmap(env.step)``),
 observation-normaliser update, generalised advantage estimation, then ``update_epochs`` passes
 of ``num_minibatches`` clipped-objective SGD steps. Nothing leaves the device; the runner
-scans ``update`` several times inside one compiled program.
+loops ``update`` (``fori_loop``) inside one compiled program.
 
 Departures from the paper, all common practice (CleanRL, Brax): a tanh-squashed Gaussian policy
 with a state-dependent scale; truncation-aware bootstrapping, i.e. a time-limit cut adds
