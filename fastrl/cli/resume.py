@@ -12,8 +12,8 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from fastrl.cli.conf import LAUNCH_KEYS, compose_container, merge_overrides, override_key
-from fastrl.training.checkpoint import CHECKPOINT_DIR, CheckpointError
-from fastrl.training.config import ConfigError, RunConfig, identity_diff
+from fastrl.training.checkpoint import CHECKPOINT_DIR, CheckpointError, EarlierLayout
+from fastrl.training.config import ConfigError, RunConfig, identity_diff, missing_identity_keys
 
 __all__ = ["OVERRIDES_FILE", "find_resume_dir", "has_checkpoints", "resumed_config", "yaml_value"]
 
@@ -56,9 +56,12 @@ def resumed_config(run_dir: Path, overrides: list[str]) -> tuple[dict, list[str]
     the run as it was started, and ``resume=RUN_DIR train.total_env_steps=2e7`` extends it. A run
     without a saved command line (started from Python) continues from its saved config with
     dotted overrides applied. Raises ``ConfigError`` naming each identity setting (env, algo,
-    network, seed, agent batch) that the overrides would change.
+    network, seed, agent batch) that the overrides would change, and ``EarlierLayout`` naming
+    those a saved config of an earlier layout lacks.
     """
     saved = _saved_config(run_dir)
+    if missing := missing_identity_keys(saved):
+        raise EarlierLayout(f"{run_dir}'s config lacks {', '.join(missing)}: {EarlierLayout.hint}")
     record = run_dir / OVERRIDES_FILE
     if record.is_file():
         line = merge_overrides(_saved_command_line(record, saved), overrides)

@@ -49,13 +49,9 @@ class Progress:
     @classmethod
     def from_meta(cls, meta: dict, n_agents: int) -> Progress:
         chunk, wall = int(meta["chunk"]), float(meta["wall_s"])
-        # checkpoints from before time-sized chunks: every chunk was updates_per_chunk updates
-        updates = meta.get("updates")
-        if updates is None:
-            updates = chunk * int(meta["config"]["train"]["updates_per_chunk"])
-        watch = CollapseWatch(n_agents, history=meta.get("eval_history"))
-        reached = list(meta.get("reached") or [None] * n_agents)
-        return cls(chunk, int(updates), wall, watch, reached, [False] * n_agents, chunk, wall)
+        watch = CollapseWatch(n_agents, history=meta["eval_history"])
+        reached = list(meta["reached"])
+        return cls(chunk, int(meta["updates"]), wall, watch, reached, [False] * n_agents, chunk, wall)
 
     def advance(self, seconds: float, updates: int) -> None:
         self.chunk += 1
