@@ -16,6 +16,7 @@ root; without it they are reported as not run. Writes ``experiments/results/atta
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import resource
 import shutil
@@ -24,7 +25,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from experiments import results
@@ -188,21 +189,29 @@ def file_size_limit(lab: Lab) -> dict:
     return _verdict(proc.returncode, 74, err, _resumes(lab, run), "")
 
 
-def _mounted(lab: Lab, name: str, size: str = "8m") -> Path | None:
+@contextlib.contextmanager
+def _tmpfs(lab: Lab, name: str, size: str = "8m") -> Iterator[Path | None]:
+    """A fresh tmpfs at ``lab.root/name`` for one attack (None where mounting needs root),
+    unmounted afterwards."""
     mnt = lab.root / name
     mnt.mkdir()
     ok = subprocess.run(
         ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], capture_output=True
     )
-    return mnt if ok.returncode == 0 else None
+    if ok.returncode != 0:
+        yield None
+        return
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)])
 
 
 def full_disk(lab: Lab) -> dict:
     """A real full disk (a tmpfs filled by another file) once the run has saved."""
-    mnt = _mounted(lab, "full")
-    if mnt is None:
-        return {"ok": None, "said": "not run: mounting a tmpfs needs root"}
-    try:
+    with _tmpfs(lab, "full") as mnt:
+        if mnt is None:
+            return {"ok": None, "said": "not run: mounting a tmpfs needs root"}
         run = mnt / "r"
         proc = lab.start(run, "logger=default")
         _wait_for(proc, run / "checkpoints" / "3")
@@ -211,16 +220,13 @@ def full_disk(lab: Lab) -> dict:
         (mnt / "filler").unlink()
         lines = len(err.strip().splitlines())
         return _verdict(proc.returncode, 74, err, _resumes(lab, run), "") | {"stderr_lines": lines}
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)])
 
 
 def read_only(lab: Lab) -> dict:
     """The checkpoints folder made read-only (a bind mount) while the run goes."""
-    mnt = _mounted(lab, "ro")
-    if mnt is None:
-        return {"ok": None, "said": "not run: mounting needs root"}
-    try:
+    with _tmpfs(lab, "ro") as mnt:
+        if mnt is None:
+            return {"ok": None, "said": "not run: mounting needs root"}
         run = mnt / "r"
         proc = lab.start(run)
         _wait_for(proc, run / "checkpoints" / "3")
@@ -232,8 +238,6 @@ def read_only(lab: Lab) -> dict:
         seconds = time.monotonic() - t
         subprocess.run(["umount", ckpts])
         return _verdict(proc.returncode, 74, err, _resumes(lab, run), "") | {"exit_s": round(seconds, 1)}
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)])
 
 
 # ----------------------------------------------------------------------------- models users bring

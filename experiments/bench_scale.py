@@ -42,8 +42,8 @@ def worker(overrides: list[str], run_dir: str) -> None:
     from omegaconf import OmegaConf
 
     import fastrl
-    from fastrl.cli.train import CONF_DIR
-    from fastrl.training import runner
+    from fastrl.cli.conf import CONF_DIR
+    from fastrl.training import Callback, Evaluation, runner
     from fastrl.training.config import RunConfig
 
     fastrl.use_recommended_xla_flags()  # the XLA:CPU flags fastrl's command line runs with
@@ -55,11 +55,11 @@ def worker(overrides: list[str], run_dir: str) -> None:
         container.pop(key, None)
     rows = []
 
-    def keep(chunk, row):
-        agents = row.get("agents", [row])
-        rows.append([{k: v for k, v in r.items() if isinstance(v, int | float)} for r in agents])
+    class Keep(Callback):
+        def on_chunk(self, run, chunk):
+            rows.append([{k: v for k, v in r.items() if isinstance(v, int | float)} for r in chunk.rows])
 
-    out = runner.train(RunConfig.from_dict(container), run_dir, on_chunk=keep)
+    out = runner.train(RunConfig.from_dict(container), run_dir, callbacks=[Evaluation(), Keep()])
     result = {"devices": jax.device_count(), "compile_s": out["compile_s"], "rows": rows}
     print("RESULT " + json.dumps(result))
 
@@ -67,7 +67,7 @@ def worker(overrides: list[str], run_dir: str) -> None:
 def _steps_per_update(overrides: list[str]) -> int:
     from hydra import compose, initialize_config_dir
 
-    from fastrl.cli.train import CONF_DIR
+    from fastrl.cli.conf import CONF_DIR
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
         algo = compose("train", overrides=[*overrides, "run_dir=/unused"]).algo
@@ -77,7 +77,7 @@ def _steps_per_update(overrides: list[str]) -> int:
 def _total_env_steps(overrides: list[str]) -> int:
     from hydra import compose, initialize_config_dir
 
-    from fastrl.cli.train import CONF_DIR
+    from fastrl.cli.conf import CONF_DIR
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
         return int(compose("train", overrides=[*overrides, "run_dir=/unused"]).train.total_env_steps)

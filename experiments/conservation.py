@@ -74,8 +74,9 @@ STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # time, qpos, qvel, ...
 
 # The Ant's shape with solid density, in the air: no gravity, contacts off (contype 0), no
 # damping, armature, springs or joint limits. Motors of gear 20 N m: under random torques the
-# legs swing through radians, spinning at a few rad/s, in a second.
-MODEL = """
+# legs swing through radians, spinning at a few rad/s, in a second. The four legs are one
+# leg's bodies (``_LEG``) along each leg's direction in the plane, with the Ant's ankle axes.
+_BODY = """
 <mujoco model="ant_free">
   <option timestep="0.01" gravity="0 0 0"/>
   <default>
@@ -87,26 +88,7 @@ MODEL = """
     <body name="torso" pos="0 0 0.75">
       <freejoint name="root"/>
       <geom type="sphere" size="0.25"/>
-      <body><geom fromto="0 0 0 0.2 0.2 0"/>
-        <body pos="0.2 0.2 0"><joint name="hip_1" type="hinge" axis="0 0 1"/>
-          <geom fromto="0 0 0 0.2 0.2 0"/>
-          <body pos="0.2 0.2 0"><joint name="ankle_1" type="hinge" axis="-1 1 0"/>
-            <geom fromto="0 0 0 0.4 0.4 0"/></body></body></body>
-      <body><geom fromto="0 0 0 -0.2 0.2 0"/>
-        <body pos="-0.2 0.2 0"><joint name="hip_2" type="hinge" axis="0 0 1"/>
-          <geom fromto="0 0 0 -0.2 0.2 0"/>
-          <body pos="-0.2 0.2 0"><joint name="ankle_2" type="hinge" axis="1 1 0"/>
-            <geom fromto="0 0 0 -0.4 0.4 0"/></body></body></body>
-      <body><geom fromto="0 0 0 -0.2 -0.2 0"/>
-        <body pos="-0.2 -0.2 0"><joint name="hip_3" type="hinge" axis="0 0 1"/>
-          <geom fromto="0 0 0 -0.2 -0.2 0"/>
-          <body pos="-0.2 -0.2 0"><joint name="ankle_3" type="hinge" axis="-1 1 0"/>
-            <geom fromto="0 0 0 -0.4 -0.4 0"/></body></body></body>
-      <body><geom fromto="0 0 0 0.2 -0.2 0"/>
-        <body pos="0.2 -0.2 0"><joint name="hip_4" type="hinge" axis="0 0 1"/>
-          <geom fromto="0 0 0 0.2 -0.2 0"/>
-          <body pos="0.2 -0.2 0"><joint name="ankle_4" type="hinge" axis="1 1 0"/>
-            <geom fromto="0 0 0 0.4 -0.4 0"/></body></body></body>
+{legs}
     </body>
   </worldbody>
   <actuator>
@@ -114,6 +96,18 @@ MODEL = """
     <motor joint="hip_3"/><motor joint="ankle_3"/><motor joint="hip_4"/><motor joint="ankle_4"/>
   </actuator>
 </mujoco>"""
+_LEG = """\
+      <body><geom fromto="0 0 0 {x:g} {y:g} 0"/>
+        <body pos="{x:g} {y:g} 0"><joint name="hip_{i}" type="hinge" axis="0 0 1"/>
+          <geom fromto="0 0 0 {x:g} {y:g} 0"/>
+          <body pos="{x:g} {y:g} 0"><joint name="ankle_{i}" type="hinge" axis="{ankle}"/>
+            <geom fromto="0 0 0 {x2:g} {y2:g} 0"/></body></body></body>"""
+_LEGS = [(0.2, 0.2, "-1 1 0"), (-0.2, 0.2, "1 1 0"), (-0.2, -0.2, "-1 1 0"), (0.2, -0.2, "1 1 0")]
+MODEL = _BODY.format(
+    legs="\n".join(
+        _LEG.format(i=i, x=x, y=y, x2=2 * x, y2=2 * y, ankle=a) for i, (x, y, a) in enumerate(_LEGS, 1)
+    )
+)
 
 MUJOCO_INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4,
                       "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}  # fmt: skip

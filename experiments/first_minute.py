@@ -45,7 +45,7 @@ def steps_per_update(env: str, extra: list[str]) -> int:
     """Env steps per PPO update of ``env`` as ``python -m fastrl.train`` composes it."""
     from hydra import compose, initialize_config_dir
 
-    from fastrl.cli.train import CONF_DIR
+    from fastrl.cli.conf import CONF_DIR
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
         cfg = compose("train", overrides=[f"env={env}", "algo=ppo", *extra])

@@ -48,7 +48,8 @@ from hydra import compose, initialize_config_dir
 
 import fastrl
 from experiments import results
-from fastrl.cli.train import CONF_DIR, run
+from fastrl.cli.conf import CONF_DIR
+from fastrl.cli.train import run
 
 TARGET = 0.9  # of the best return, 1000 on inverted_pendulum
 BEST_RETURN = 1000.0

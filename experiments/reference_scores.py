@@ -100,7 +100,8 @@ def quick_run(tmp: pathlib.Path, env: str = "hopper") -> str:
     """A tiny PPO run (``debug=quick``) of ``env`` trained with Euler, in ``tmp``."""
     from hydra import compose, initialize_config_dir
 
-    from fastrl.cli.train import CONF_DIR, run
+    from fastrl.cli.conf import CONF_DIR
+    from fastrl.cli.train import run
 
     overrides = [f"env={env}", "algo=ppo", "debug=quick", "logger=quiet", "env.integrator=euler"]
     with initialize_config_dir(config_dir=CONF_DIR, version_base=None):

@@ -12,20 +12,15 @@ PHYSICS_KEYS = ("integrator", "solver_iterations", "timestep", "frame_skip")
 
 
 def shipped_overrides(name: str, algo: str = "ppo") -> dict:
-    """Physics keys set in ``conf/env/<name>.yaml``, then ``conf/experiment/<name>_<algo>.yaml``."""
+    """Physics keys set in ``conf/experiment/<name>_<algo>.yaml`` (the env group sets none: it is
+    each env's name and constructor options)."""
     from omegaconf import OmegaConf
 
-    out = {}
-    env_file, experiment_file = (
-        ROOT / "conf" / "env" / f"{name}.yaml",
-        ROOT / "conf" / "experiment" / f"{name}_{algo}.yaml",
-    )
-    for path in (env_file, experiment_file):
-        if path.exists():
-            conf = OmegaConf.to_container(OmegaConf.load(path))
-            conf = (conf.get("env") or {}) if path.parent.name == "experiment" else conf
-            out.update({k: conf[k] for k in PHYSICS_KEYS if conf.get(k) is not None})
-    return out
+    path = ROOT / "conf" / "experiment" / f"{name}_{algo}.yaml"
+    if not path.exists():
+        return {}
+    conf = OmegaConf.to_container(OmegaConf.load(path)).get("env") or {}
+    return {k: conf[k] for k in PHYSICS_KEYS if conf.get(k) is not None}
 
 
 def shipped_setting(name: str, dt: float) -> dict:

@@ -56,8 +56,8 @@ deadlocked at batch 1024 in this JAX (see ``BRAX_BACKENDS``; ``--brax-backends m
 ``--brax-only`` adds or re-measures Brax's points alone, keeping the other rows of the output
 JSON (and its fronts are recomputed with them).
 
-Shipped: the setting ``python -m fastrl.train env=<model>`` trains with, i.e. ``conf/env/<model>
-.yaml`` and ``conf/experiment/<model>_ppo.yaml`` over the env's defaults (the Ant: Euler at
+Shipped: the setting ``python -m fastrl.train env=<model>`` trains with, i.e.
+``conf/experiment/<model>_ppo.yaml`` over the env's defaults (the Ant: Euler at
 0.01 s x 5, 5 iterations; the others: the asset's integrator, timestep and iteration count).
 ``--from-json`` marks it anew from the current configs in the committed JSON, measuring nothing.
 

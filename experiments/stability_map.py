@@ -25,9 +25,9 @@ and is not built to (the state stays finite; MuJoCo C at 100 iterations sinks al
 0.53 m on the Ant at 0.025 and 0.05 s); the columns past ``dt`` show where the guard fires at the
 shipped iterations (the Ant at 0.1 s, the HalfCheetah at 0.1 s, the InvertedDoublePendulum at
 0.1 and 0.2 s), and ``tests/physics/test_stability.py`` asserts it does for two of them. The
-integrator is the shipped one (``conf/env/<env>.yaml`` then ``conf/experiment/<env>_ppo.yaml``
-over the env's defaults: the Ant trains with Euler and 5 iterations, the others with their
-asset's integrator and 8), or those ``--integrators`` names.
+integrator is the shipped one (``conf/experiment/<env>_ppo.yaml`` over the env's defaults: the
+Ant trains with Euler and 5 iterations, the others with their asset's integrator and 8), or those
+``--integrators`` names.
 
 Each cell runs a batch of episodes (64; the Humanoid 16, its physics step costs ~35x the Ant's)
 of 1000 control steps from the env's own ``reset`` (fixed keys, the same in every cell) under

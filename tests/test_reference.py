@@ -16,7 +16,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from fastrl import envs
-from fastrl.cli.train import CONF_DIR, run
+from fastrl.cli.conf import CONF_DIR
+from fastrl.cli.train import run
 from fastrl.tools import evaluate, reference
 
 

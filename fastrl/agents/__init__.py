@@ -8,6 +8,7 @@ per chunk, a traced argument); a checkpoint is the state.
 
 from __future__ import annotations
 
+from fastrl.agents import apg, es, ppo, sac
 from fastrl.agents.apg import APGConfig, UnsuitableEnvError, make_apg
 from fastrl.agents.base import Algorithm, Learner, PolicyParams, SplitsOverDevices
 from fastrl.agents.es import ESConfig, make_es
@@ -17,10 +18,12 @@ from fastrl.agents.ppo import PPOConfig, make_ppo
 from fastrl.agents.sac import SACConfig, make_sac
 
 ALGORITHMS = {
-    "ppo": Algorithm(PPOConfig, make_ppo, splits_over_devices=True, privileged_critic=True),
-    "sac": Algorithm(SACConfig, make_sac),
-    "es": Algorithm(ESConfig, make_es),
-    "apg": Algorithm(APGConfig, make_apg),
+    "ppo": Algorithm(
+        PPOConfig, make_ppo, ppo.env_steps_per_update, splits_over_devices=True, privileged_critic=True
+    ),
+    "sac": Algorithm(SACConfig, make_sac, sac.env_steps_per_update),
+    "es": Algorithm(ESConfig, make_es, es.env_steps_per_update),
+    "apg": Algorithm(APGConfig, make_apg, apg.env_steps_per_update),
 }
 
 
@@ -33,15 +36,16 @@ def config_class(name: str):
         raise ValueError(f"unknown algorithm {name!r}; choose one of: {choices}") from None
 
 
-def splits_over_devices(name: str) -> bool:
-    """Whether learner ``name`` takes a device mesh and splits its env batch and minibatches itself."""
-    return ALGORITHMS[name].splits_over_devices
+def env_steps_per_update(name: str, config, env) -> int:
+    """Env steps one update of learner ``name`` with ``config`` takes on ``env`` (what its
+    ``Learner.env_steps_per_update`` will say), without building it."""
+    return ALGORITHMS[name].env_steps(config, env)
 
 
 def splits_evenly(name: str, config, devices: int) -> bool:
     """Whether learner ``name`` with ``config`` can split its own work over ``devices`` devices
-    (False for a learner that never splits it: ``splits_over_devices``)."""
-    if not splits_over_devices(name):
+    (False for a learner that never splits it: ``Algorithm.splits_over_devices``)."""
+    if not ALGORITHMS[name].splits_over_devices:
         return False
     split: SplitsOverDevices = config
     return split.splits_evenly(devices)
@@ -71,8 +75,8 @@ __all__ = [
     "Algorithm",
     "SplitsOverDevices",
     "make_rollout",
+    "env_steps_per_update",
     "splits_evenly",
-    "splits_over_devices",
     "APGConfig",
     "ESConfig",
     "SACConfig",

@@ -129,6 +129,12 @@ def make_window(config: APGConfig, env_step, policy_net, dist, norm):
     return window
 
 
+def env_steps_per_update(config: APGConfig, env: Env) -> int:
+    """Env steps one update takes: a window of ``horizon`` steps of each of ``num_envs`` envs."""
+    del env
+    return config.num_envs * config.horizon
+
+
 def make_apg(config: APGConfig, env: Env, network: NetworkConfig, total_updates: int = 1) -> Learner:
     """Builds APG for ``env``; raises ``UnsuitableEnvError`` for envs without smooth gradients."""
     del total_updates
@@ -186,7 +192,7 @@ def make_apg(config: APGConfig, env: Env, network: NetworkConfig, total_updates:
     act = make_act(policy_net, dist, norm)
 
     return Learner(init=init, update=update, policy_params=policy_params, act=act,
-                   env_steps_per_update=config.num_envs * config.horizon,
+                   env_steps_per_update=env_steps_per_update(config, env),
                    num_envs=config.num_envs)  # fmt: skip
 
 

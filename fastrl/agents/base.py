@@ -53,6 +53,8 @@ class Algorithm(NamedTuple):
     Fields:
       config               the frozen config dataclass
       make                 ``make(config, env, network, total_updates[, mesh=]) -> Learner``
+      env_steps            ``env_steps(config, env) -> int``: env steps one update takes, known
+                           before the learner is built (``total_updates`` follows from it)
       splits_over_devices  ``make`` takes a device mesh and splits its env batch and minibatch
                            gradients itself; ``config`` is then a ``SplitsOverDevices``
       privileged_critic    it trains envs whose observation appends privileged state after
@@ -62,6 +64,7 @@ class Algorithm(NamedTuple):
 
     config: type
     make: Callable[..., Learner]
+    env_steps: Callable[[Any, Any], int]
     splits_over_devices: bool = False
     privileged_critic: bool = False
 

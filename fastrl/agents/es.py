@@ -86,6 +86,11 @@ def es_gradient(fitness: jax.Array, eps: jax.Array, sigma: float) -> jax.Array:
     return (fitness[:half] - fitness[half:]) @ eps / (2 * half * sigma)
 
 
+def env_steps_per_update(config: ESConfig, env: Env) -> int:
+    """Env steps one update takes: an episode of ``env.episode_length`` steps per member."""
+    return config.population_size * env.episode_length
+
+
 def make_es(config: ESConfig, env: Env, network: NetworkConfig, total_updates: int = 1) -> Learner:
     """Builds ES for ``env`` (one episode of ``env.episode_length`` steps per member)."""
     del total_updates
@@ -139,7 +144,7 @@ def make_es(config: ESConfig, env: Env, network: NetworkConfig, total_updates: i
     act = make_act(policy_net, dist, norm)
 
     return Learner(init=init, update=update, policy_params=policy_params, act=act,
-                   env_steps_per_update=pop * horizon)  # fmt: skip
+                   env_steps_per_update=env_steps_per_update(config, env))  # fmt: skip
 
 
 def _episode_fn(env: Env, policy_net: MLP, dist: TanhGaussian, norm, unravel):

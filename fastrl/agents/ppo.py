@@ -4,7 +4,7 @@
 ``unroll_length`` steps of ``num_envs`` environments (a ``lax.scan`` over ``vmap(env.step)``),
 observation-normaliser update, generalised advantage estimation, then ``update_epochs`` passes
 of ``num_minibatches`` clipped-objective SGD steps. Nothing leaves the device; the runner
-scans ``update`` several times inside one compiled program.
+loops ``update`` (``fori_loop``) inside one compiled program.
 
 Departures from the paper, all common practice (CleanRL, Brax): a tanh-squashed Gaussian policy
 with a state-dependent scale; truncation-aware bootstrapping, i.e. a time-limit cut adds
@@ -202,6 +202,12 @@ class _Parts(NamedTuple):
     policy_obs: int  # the observation's leading entries the policy reads (the critic reads all)
 
 
+def env_steps_per_update(config: PPOConfig, env: Env) -> int:
+    """Env steps one update takes: ``unroll_length`` steps of each of ``num_envs`` envs."""
+    del env
+    return config.batch_size
+
+
 def make_ppo(
     config: PPOConfig, env: Env, network: NetworkConfig, total_updates: int = 1, mesh: Mesh | None = None
 ) -> Learner:
@@ -252,7 +258,7 @@ def make_ppo(
 
     return Learner(
         init=init, update=update, policy_params=policy_params, act=act,
-        env_steps_per_update=config.batch_size, num_envs=config.num_envs,
+        env_steps_per_update=env_steps_per_update(config, env), num_envs=config.num_envs,
     )  # fmt: skip
 
 

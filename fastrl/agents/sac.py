@@ -138,11 +138,17 @@ class _Parts(NamedTuple):
     target_entropy: float
 
 
+def env_steps_per_update(config: SACConfig, env: Env) -> int:
+    """Env steps one update takes: ``config.env_steps_per_update`` steps of each of ``num_envs`` envs."""
+    del env
+    return config.num_envs * config.env_steps_per_update
+
+
 def make_sac(config: SACConfig, env: Env, network: NetworkConfig, total_updates: int = 1) -> Learner:
     """Builds SAC for ``env`` (``total_updates`` is unused: SAC keeps a constant step size)."""
     del total_updates
     p = _parts(config, env, network)
-    n_new = config.num_envs * config.env_steps_per_update
+    n_new = env_steps_per_update(config, env)
     collect, grad_step = _make_collect(config, p), _make_grad_step(config, p)
 
     def update(state: SACState) -> tuple[SACState, dict]:

@@ -1,20 +1,19 @@
 """``python -m fastrl.train env=ant algo=ppo [key=value ...]``: the training front door.
 
-Hydra composes ``conf/`` (see conf/train.yaml); this module turns the result into a typed
-``RunConfig`` (failing before any compilation on a bad value) and hands it to the runner, with
-the callbacks that look at the run (``fastrl.tools.callbacks.standard()``: viewer pages, the
-physics note, learning curves).
+Hydra composes ``conf/`` (see conf/train.yaml and ``fastrl.cli.conf``); this module turns the
+result into a typed ``RunConfig`` (failing before any compilation on a bad value), sets the CPU
+devices and XLA flags, and hands it to the runner with the command line's callbacks
+(``fastrl.tools.callbacks.standard()``: the evaluation, the physics note, viewer pages,
+learning curves).
 ``resume=PATH`` continues a given run with its own saved command line (further ``key=value``
 arguments apply on top; ``resume_step=N`` picks a checkpoint), ``resume=true`` the run in
-``hydra.run.dir`` or else the latest run of the same env/algo.
+``hydra.run.dir`` or else the latest run of the same env/algo (``fastrl.cli.resume``).
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import os
-import re
 import shutil
 import signal
 import sys
@@ -22,224 +21,22 @@ from pathlib import Path
 
 import hydra
 import jax
-from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
-from fastrl import agents, envs
+from fastrl.cli.conf import CONF_DIR, merge_overrides
+from fastrl.cli.resume import OVERRIDES_FILE, find_resume_dir, has_checkpoints, resumed_config
 from fastrl.runtime import compile_cache, xla_flags
 from fastrl.tools import callbacks
-from fastrl.training import files, runner
+from fastrl.training import files, layout, runner
 from fastrl.training.checkpoint import CHECKPOINT_DIR, CheckpointError
-from fastrl.training.config import SECTIONS, ConfigError, RunConfig, defaults, identity_diff
+from fastrl.training.config import ConfigError, RunConfig
 from fastrl.training.files import WriteError
 
-__all__ = [
-    "CONF_DIR",
-    "OVERRIDES_FILE",
-    "compose_container",
-    "cpu_devices",
-    "find_resume_dir",
-    "init_distributed",
-    "main",
-    "merge_overrides",
-    "register_defaults",
-    "resumed_config",
-    "run",
-]
+__all__ = ["cpu_devices", "init_distributed", "main", "run"]
 
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
-
-
-def register_defaults() -> None:
-    """Stores the config dataclasses' defaults in Hydra's ConfigStore, as the configs that
-    conf/ extends: ``dataclass/<section>`` (``dataclass/run``: ``seed``, ``init_from``) and
-    ``dataclass/algo/<learner>``. A default is written once, in its dataclass; a conf/ file
-    holds only what differs, and every key stays overridable as ``section.key=value``."""
-    store = ConfigStore.instance()
-    store.store(group="dataclass", name="run", node=defaults(RunConfig))
-    named = {"name": "???"}  # Hydra's mandatory value: the file that extends it names the env or learner
-    for section, cls in SECTIONS.items():
-        node = {**named, **defaults(cls)} if section == "env" else defaults(cls)
-        store.store(group="dataclass", name=section, node=node)
-    for name in agents.ALGORITHMS:
-        store.store(group="dataclass/algo", name=name, node={**named, **defaults(agents.config_class(name))})
-
-
-# Done on import, as conf/ cannot be composed without it (importing CONF_DIR brings it along).
-register_defaults()
-
-# Command-line keys that say how to start, not what the run is: never part of a run's record.
-_LAUNCH_KEYS = ("resume", "resume_step", "run_dir", "distributed")
-OVERRIDES_FILE = ".hydra/overrides.yaml"
 # The exit status of a run ended by a failed write (a full disk, a read-only folder): EX_IOERR.
 EXIT_WRITE_FAILED = 74
-
-
-def find_resume_dir(resume, runs_root: Path, current: Path) -> Path | None:
-    """The run folder to continue: None (a new run), a given path, or for ``resume=true`` the
-    current run folder when it holds checkpoints (``hydra.run.dir=X resume=true``), else the
-    newest run with checkpoints under ``runs_root`` (the env/algo's folder of runs)."""
-    if resume in (False, None, "false", "False"):
-        return None
-    if resume in (True, "true", "True"):
-        if _has_checkpoints(current):
-            return current
-        candidates = [
-            p.parent.parent
-            for p in runs_root.glob(f"*/{CHECKPOINT_DIR}/*")
-            if p.is_dir() and p.name.isdigit()
-        ]
-        if not candidates:
-            raise CheckpointError(f"resume=true but no run with checkpoints under {runs_root}")
-        return max(candidates, key=lambda p: (p / CHECKPOINT_DIR).stat().st_mtime)
-    path = Path(str(resume)).expanduser()
-    if not (path / CHECKPOINT_DIR).is_dir():
-        raise CheckpointError(f"resume={resume}: {path} is not a run folder (no {CHECKPOINT_DIR}/ inside)")
-    return path
-
-
-def _has_checkpoints(run_dir: Path) -> bool:
-    ckpts = run_dir / CHECKPOINT_DIR
-    return ckpts.is_dir() and any(p.is_dir() and p.name.isdigit() for p in ckpts.iterdir())
-
-
-def _override_key(override: str) -> str:
-    return override.split("=", 1)[0].lstrip("+~")
-
-
-def merge_overrides(saved: list[str], new: list[str]) -> list[str]:
-    """``saved`` then ``new`` command-line overrides, a later one replacing an earlier one of the
-    same key (``env=...``, ``algo.learning_rate=...``); launch keys (``resume`` ...) dropped."""
-    out: dict[str, str] = {}
-    for o in [*saved, *new]:
-        key = _override_key(o)
-        if key not in _LAUNCH_KEYS:
-            out.pop(key, None)
-            out[key] = o
-    return list(out.values())
-
-
-def compose_container(overrides: list[str]) -> dict:
-    """The resolved config of ``conf/train.yaml`` under ``overrides``, without launch keys."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    overrides = [*overrides, "run_dir=/unused"]
-    try:
-        if GlobalHydra.instance().is_initialized():  # inside the command-line app
-            cfg = compose("train", overrides=overrides)
-        else:
-            with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
-                cfg = compose("train", overrides=overrides)
-    except (HydraException, OmegaConfBaseException) as e:  # a recorded line replayed on resume
-        raise ConfigError(f"the command line {overrides[:-1]} cannot be composed: {e}") from None
-    container = OmegaConf.to_container(cfg, resolve=True)
-    for key in _LAUNCH_KEYS:
-        container.pop(key, None)
-    return container
-
-
-def resumed_config(run_dir: Path, overrides: list[str]) -> tuple[dict, list[str]]:
-    """The config a resumed run continues with, and its command line, from the run's own record.
-
-    ``overrides`` (the resume command's own ``key=value`` arguments) are applied on top of the
-    run's saved command line (``.hydra/overrides.yaml``), so ``resume=RUN_DIR`` alone continues
-    the run as it was started, and ``resume=RUN_DIR train.total_env_steps=2e7`` extends it. A run
-    without a saved command line (started from Python) continues from its saved config with
-    dotted overrides applied. Raises ``ConfigError`` naming each identity setting (env, algo,
-    network, seed, agent batch) that the overrides would change.
-    """
-    saved = _saved_config(run_dir)
-    record = run_dir / OVERRIDES_FILE
-    if record.is_file():
-        line = merge_overrides(_saved_command_line(record, saved), overrides)
-        container = compose_container(line)
-    else:
-        line = merge_overrides([], overrides)
-        container = OmegaConf.create(saved)
-        for o in line:
-            key, _, value = o.partition("=")
-            key = key.lstrip("+")
-            if OmegaConf.select(container, key, default=None) is None and "." not in key:
-                raise ConfigError(
-                    f"{run_dir} has no saved command line ({OVERRIDES_FILE}), so {o!r} cannot be applied "
-                    "to it; resume it with dotted keys only, e.g. train.total_env_steps=..."
-                )
-            OmegaConf.update(container, key, _yaml_value(value), merge=False)
-        container = OmegaConf.to_container(container, resolve=True)
-    diffs = identity_diff(saved, RunConfig.from_dict(container).to_dict())
-    if diffs:
-        raise ConfigError(
-            f"resume={run_dir}: the command line changes what the run is; resume it without these "
-            "overrides, or start a new run. Differences (saved -> asked):\n  " + "\n  ".join(diffs)
-        )
-    return container, line
-
-
-def _saved_config(run_dir: Path) -> dict:
-    """The run's config: its ``config.json`` (written only once a run is valid); when that is
-    damaged, the copy in the newest checkpoint that holds a readable one. Both are read as plain
-    JSON files, without starting JAX, so that the CPU device count can still be chosen."""
-    path = run_dir / "config.json"
-    config = _json_object(path)
-    if config is not None:
-        return config
-    steps = [p for p in (run_dir / CHECKPOINT_DIR).iterdir() if p.name.isdigit()]
-    for step in sorted(steps, key=lambda p: -int(p.name)):
-        meta = _json_object(step / "meta" / "metadata")
-        if meta is not None and isinstance(meta.get("config"), dict):
-            if path.exists():
-                print(f"[fastrl] warning: {path} is damaged; using the copy in {step}", file=sys.stderr)
-            return meta["config"]
-    raise ConfigError(f"{run_dir} holds no readable config: neither config.json nor a checkpoint's")
-
-
-def _json_object(path: Path) -> dict | None:
-    """The JSON object in ``path``; None when the file is missing, unreadable, or not an object."""
-    try:
-        value = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return None
-    return value if isinstance(value, dict) else None
-
-
-# What a recorded command line may hold: ``key=value`` with a dotted config key (``+`` / ``~``
-# prefixes as Hydra allows), and a value of printable characters.
-_OVERRIDE = re.compile(r"[+~]{0,2}[A-Za-z_]\w*(\.\w+)*(@[\w.]+)?(=[^\x00-\x1f\x7f]*)?", re.ASCII)
-
-
-def _saved_command_line(record: Path, saved: dict) -> list[str]:
-    """The command line a run folder recorded, checked as untrusted input: a YAML list of
-    ``key=value`` strings with config keys, no launch or Hydra keys, and an ``init_from`` that
-    the run's own config holds (a resume never starts from other weights). Raises
-    ``ConfigError`` naming the record and the offending entry."""
-    try:
-        line = OmegaConf.to_container(OmegaConf.load(record)) or []
-    except Exception as e:  # YAML's and OmegaConf's parse errors have many types
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise ConfigError(f"{record} cannot be read (invalid YAML: {first}); restore or remove it") from None
-    if not isinstance(line, list):
-        raise ConfigError(f"{record} should be a list of key=value overrides, not {type(line).__name__}")
-    for entry in line:
-        if not isinstance(entry, str) or not _OVERRIDE.fullmatch(entry) or len(entry) > 4096:
-            raise ConfigError(f"{record} holds {entry!r}, which is not a command line's key=value override")
-        key = _override_key(entry)
-        if key in _LAUNCH_KEYS or key.split(".")[0] == "hydra":
-            raise ConfigError(f"{record} holds {entry!r}: a run's recorded command line never sets {key}")
-        if key == "init_from" and _yaml_value(entry.partition("=")[2]) != saved.get("init_from"):
-            raise ConfigError(
-                f"{record} holds {entry!r}, but the run's config says init_from="
-                f"{saved.get('init_from')!r}: the record does not belong to this run"
-            )
-    return line
-
-
-def _yaml_value(text: str):
-    """A command-line value as Hydra reads it (numbers, booleans, lists, null)."""
-    return OmegaConf.create({"v": text})["v"] if text else text
 
 
 def init_distributed() -> None:
@@ -266,38 +63,20 @@ def init_distributed() -> None:
 
 
 def cpu_devices(rc: RunConfig, cores: int) -> int:
-    """How many XLA CPU devices to give a run on a host with ``cores`` cores.
-
-    XLA:CPU runs one program's operations on a thread pool, but the physics step is thousands
-    of small fused loops that keep only about 1.45 of 2 cores busy (the Ant's step at batch
-    1024); split over 2 devices, each device's copy runs on its own core (2.07x one core).
-    Learners that split their own work (PPO: env slices and minibatch halves, see
-    ``scale.learner_splits``) get one device per core, as many as divide the env batch and the
-    minibatch; others, and agent batches, keep one device (XLA's automatic layout ran PPO's
-    gradients in full on each device, so it would not be faster). ``FASTRL_CPU_DEVICES=N``
-    overrides, and an ``XLA_FLAGS`` that sets the device count is left alone. Envs whose step
-    runs slower split than on one device (``Env.splits_over_devices``: three of the robot tasks,
-    measured in ``robot_throughput.md``) keep one device.
-    """
+    """How many XLA CPU devices to give a run on a host with ``cores`` cores: the layout's
+    choice (``fastrl.training.layout.cpu_devices``), unless ``FASTRL_CPU_DEVICES=N`` says."""
     if "FASTRL_CPU_DEVICES" in os.environ:
         value = os.environ["FASTRL_CPU_DEVICES"]
         if not value.isdigit() or int(value) < 1:
             raise ConfigError(f"FASTRL_CPU_DEVICES={value!r} should be a positive integer")
         return int(value)
-    if rc.train.num_seeds > 1 or rc.train.vmap_sweep or not agents.splits_over_devices(rc.algo_name):
-        return 1
-    if not envs.env_class(rc.env.name).splits_over_devices:
-        return 1
-    n = max(1, cores)
-    while n > 1 and not agents.splits_evenly(rc.algo_name, rc.algo, n):
-        n -= 1
-    return n
+    return layout.cpu_devices(rc, cores)
 
 
 def _set_cpu_flags(rc: RunConfig) -> None:
     """Sets the CPU device count (``cpu_devices``) and fastrl's XLA:CPU flags for this learner
     (``xla_flags.apply``) while JAX has not started a backend yet. Whatever the user's
-    ``XLA_FLAGS`` sets is left as it is."""
+    ``XLA_FLAGS`` sets, the device count included, is left as it is."""
     named = xla_flags.names(os.environ.get("XLA_FLAGS", ""))
     devices = None if xla_flags.DEVICE_FLAG in named else cpu_devices(rc, len(os.sched_getaffinity(0)))
     xla_flags.apply(devices, rc.algo_name)
@@ -354,7 +133,7 @@ def _discard_unused(output_dir: Path, used: Path | None) -> None:
     if not output_dir.is_dir():
         return
     leftovers = {p.name for p in output_dir.iterdir()}
-    if leftovers <= {"train.log", ".lock", CHECKPOINT_DIR} and not _has_checkpoints(output_dir):
+    if leftovers <= {"train.log", ".lock", CHECKPOINT_DIR} and not has_checkpoints(output_dir):
         shutil.rmtree(output_dir, ignore_errors=True)
         for parent in output_dir.parents[:2]:  # runs/<env>-<algo>/ and runs/, when left empty
             try:

@@ -2,7 +2,7 @@
 
 from fastrl.envs.base import Env, Randomization
 from fastrl.envs.episode import State
-from fastrl.envs.registry import env_class, make, names, register
+from fastrl.envs.registry import env_class, make, names, options, register
 from fastrl.runtime.devices import batch_mesh, over_devices
 
 _GYMNASIUM_ADAPTER = ("GymEnv", "VectorEnv", "make_gym", "make_vec")
@@ -31,6 +31,7 @@ __all__ = [
     "make_gym",
     "make_vec",
     "names",
+    "options",
     "over_devices",
     "register",
 ]

@@ -69,8 +69,9 @@ class Randomization:
 class Env:
     """Base class: a MuJoCo-style task over fastrl physics with Gymnasium v5 semantics.
 
-    Subclasses set the class attributes and implement ``_reset_qpos_qvel``, ``_observe`` and
-    ``_reward``. Constructor arguments override the Gymnasium defaults.
+    Subclasses set the class attributes and implement ``_observe`` and ``_reward``, and
+    ``_reset_qpos_qvel`` unless Gymnasium's usual reset is theirs. Constructor arguments override
+    the Gymnasium defaults.
 
     Args:
       episode_length: steps before ``truncated`` (Gymnasium's ``max_episode_steps``).
@@ -94,6 +95,7 @@ class Env:
     default_episode_length: int = 1000
     default_weights: Mapping[str, float] = {}
     default_reset_noise_scale: float = 0.0
+    reset_qvel_normal: bool = False  # the usual reset's qvel: s N(0, 1), else U(-s, s)
     default_randomization: Mapping[str, float] = {}
     # The Newton solver's line search: "exact" for fastrl's own scenes (the budgets in
     # fastrl/assets/README.md were measured for it); "mujoco" steps a scene as MuJoCo C does.
@@ -103,7 +105,8 @@ class Env:
     # contact slots (``physics.load_mjcf(nconmax=...)``); None: the scene's or the loader's rule
     nconmax: int | None = None
     # Whether the training command line may split this env's batch over one CPU device per core
-    # (``fastrl.cli.train.cpu_devices``); False where the step runs slower split than on one device.
+    # (``fastrl.training.layout.cpu_devices``); False where the step runs slower split than on one
+    # device.
     splits_over_devices: bool = True
     # Whether gradients of the return through the physics are informative (smooth dynamics and
     # rewards); analytic policy gradients refuse envs without, explaining ``gradient_note``.
@@ -167,8 +170,14 @@ class Env:
     # ---------------------------------------------------------------- subclass interface
 
     def _reset_qpos_qvel(self, key: jax.Array, model: Model) -> tuple[jax.Array, jax.Array]:
-        """(nq,), (nv,) initial state of a new episode (Gymnasium's ``reset_model``)."""
-        raise NotImplementedError
+        """(nq,), (nv,) initial state of a new episode (Gymnasium's ``reset_model``); by default
+        Gymnasium's usual one: qpos0 + U(-s, s), qvel U(-s, s) or s N(0, 1)
+        (``reset_qvel_normal``), with s the ``reset_noise_scale``."""
+        s = self.reset_noise_scale
+        k1, k2 = jax.random.split(key)
+        qpos = model.qpos0 + self.uniform(k1, (model.nq,), s)
+        qvel = self.normal(k2, (model.nv,), s) if self.reset_qvel_normal else self.uniform(k2, (model.nv,), s)
+        return qpos, qvel
 
     def _observe(self, model: Model, data: Data) -> jax.Array:
         """(obs_size,) observation of ``data`` (Gymnasium's ``_get_obs``)."""

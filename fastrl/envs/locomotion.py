@@ -15,15 +15,6 @@ from fastrl.envs.base import Env
 from fastrl.physics import Data, Model
 
 
-def _uniform_reset(env: Env, key: jax.Array, model: Model, normal_qvel: bool):
-    """Gymnasium's usual reset: qpos0 + U(-s, s); qvel U(-s, s) or s N(0, 1)."""
-    s = env.reset_noise_scale
-    k1, k2 = jax.random.split(key)
-    qpos = model.qpos0 + env.uniform(k1, (model.nq,), s)
-    qvel = env.normal(k2, (model.nv,), s) if normal_qvel else env.uniform(k2, (model.nv,), s)
-    return qpos, qvel
-
-
 def _forward_velocity(env: Env, before: jax.Array, after: jax.Array) -> jax.Array:
     return (after - before) / env.dt
 
@@ -44,6 +35,7 @@ class Ant(Env):
     default_frame_skip = 5
     default_weights = {"forward": 1.0, "healthy": 1.0, "ctrl": 0.5, "contact": 5e-4}
     default_reset_noise_scale = 0.1
+    reset_qvel_normal = True
     healthy_z_range = (0.2, 1.0)
     contact_force_range = (-1.0, 1.0)
     main_body = 1
@@ -51,9 +43,6 @@ class Ant(Env):
     def __init__(self, *, include_cfrc_ext_in_observation: bool = True, **kwargs):
         self.include_cfrc_ext_in_observation = bool(include_cfrc_ext_in_observation)
         super().__init__(**kwargs)
-
-    def _reset_qpos_qvel(self, key, model):
-        return _uniform_reset(self, key, model, normal_qvel=True)
 
     def _contact_forces(self, model: Model, data: Data) -> jax.Array:
         lo, hi = self.contact_force_range
@@ -94,9 +83,7 @@ class HalfCheetah(Env):
     default_frame_skip = 5
     default_weights = {"forward": 1.0, "ctrl": 0.1}
     default_reset_noise_scale = 0.1
-
-    def _reset_qpos_qvel(self, key, model):
-        return _uniform_reset(self, key, model, normal_qvel=True)
+    reset_qvel_normal = True
 
     def _observe(self, model, data):
         return jnp.concatenate([data.qpos[1:], data.qvel])
@@ -124,9 +111,6 @@ class Hopper(Env):
     healthy_state_range = (-100.0, 100.0)
     healthy_z_range = (0.7, float("inf"))
     healthy_angle_range = (-0.2, 0.2)
-
-    def _reset_qpos_qvel(self, key, model):
-        return _uniform_reset(self, key, model, normal_qvel=False)
 
     def _observe(self, model, data):
         return jnp.concatenate([data.qpos[1:], jnp.clip(data.qvel, -10.0, 10.0)])
@@ -190,9 +174,6 @@ class Humanoid(Env):
     default_reset_noise_scale = 1e-2
     healthy_z_range = (1.0, 2.0)
     contact_cost_max = 10.0
-
-    def _reset_qpos_qvel(self, key, model):
-        return _uniform_reset(self, key, model, normal_qvel=False)
 
     def _observe(self, model, data):
         return jnp.concatenate(
@@ -258,9 +239,6 @@ class Swimmer(Env):
     default_weights = {"forward": 1.0, "ctrl": 1e-4}
     default_reset_noise_scale = 0.1
     smooth_gradients = True  # no contacts: viscous fluid forces only
-
-    def _reset_qpos_qvel(self, key, model):
-        return _uniform_reset(self, key, model, normal_qvel=False)
 
     def _observe(self, model, data):
         return jnp.concatenate([data.qpos[2:], data.qvel])

@@ -121,11 +121,6 @@ class InvertedPendulum(Env):
     default_reset_noise_scale = 0.01
     smooth_gradients = True
 
-    def _reset_qpos_qvel(self, key, model):
-        k1, k2 = jax.random.split(key)
-        s = self.reset_noise_scale
-        return model.qpos0 + self.uniform(k1, (model.nq,), s), self.uniform(k2, (model.nv,), s)
-
     def _observe(self, model, data):
         return jnp.concatenate([data.qpos, data.qvel])
 
@@ -155,12 +150,8 @@ class InvertedDoublePendulum(Env):
     default_frame_skip = 5
     default_weights = {"alive": 10.0, "distance": 1.0, "velocity": 1.0}
     default_reset_noise_scale = 0.1
+    reset_qvel_normal = True
     smooth_gradients = True
-
-    def _reset_qpos_qvel(self, key, model):
-        k1, k2 = jax.random.split(key)
-        s = self.reset_noise_scale
-        return model.qpos0 + self.uniform(k1, (model.nq,), s), self.normal(k2, (model.nv,), s)
 
     def _observe(self, model, data):
         q = data.qpos

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import inspect
+from typing import Any
+
 from fastrl.envs import locomotion, manipulation, robots, scenes
 from fastrl.envs.base import Env
 
@@ -65,3 +68,23 @@ def make(name: str, **overrides) -> Env:
       ValueError: for an unknown name, listing the registered ones.
     """
     return env_class(name)(**overrides)
+
+
+def options(name: str) -> dict[str, Any]:
+    """The keyword options env ``name``'s task adds to ``Env``'s own, with their defaults.
+
+    They are the env's ``env.options`` in the training config, so the constructors' defaults are
+    the only ones; base classes' options come first.
+
+    Raises:
+      ValueError: for an unknown name, listing the registered ones.
+    """
+    common = set(inspect.signature(Env.__init__).parameters)
+    out: dict[str, Any] = {}
+    for cls in reversed(env_class(name).__mro__):
+        if "__init__" not in vars(cls) or not issubclass(cls, Env):
+            continue
+        for p in inspect.signature(vars(cls)["__init__"]).parameters.values():
+            if p.kind is p.KEYWORD_ONLY and p.name not in common:
+                out[p.name] = p.default
+    return out

@@ -3,7 +3,7 @@
 Every split in fastrl is over one mesh axis, ``DEVICE_AXIS``, spanning all devices (GPUs, or CPU
 devices made with ``XLA_FLAGS=--xla_force_host_platform_device_count=N``). Envs use it to step a
 batch on every device (``over_devices``), learners to split their minibatch gradients, and the
-training runner to lay out the training state (``fastrl.training.scale``).
+training runner to lay out the training state (``fastrl.training.layout``).
 """
 
 from __future__ import annotations

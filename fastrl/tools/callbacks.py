@@ -1,4 +1,5 @@
-"""The tools as the training runner's callbacks: what the command line hands ``runner.train``.
+"""The tools as the training runner's callbacks: what the command line hands ``runner.train``
+(``standard()``: the evaluation, ``fastrl.training.evaluation.Evaluation``, first, then these).
 
 - ``PhysicsNote``: at the start, a note when the run's physics is not its env's own (the
   evaluation returns are then at this run's physics, and ``--reference`` scores the policy in
@@ -18,14 +19,16 @@ import jax
 from fastrl.runtime.devices import to_host
 from fastrl.tools import reference, viewer
 from fastrl.tools.curve import plot_run
-from fastrl.training.runner import Callback, RunInfo
+from fastrl.training.evaluation import Evaluation
+from fastrl.training.hooks import Callback, ChunkInfo, RunInfo
 
 __all__ = ["Curves", "PhysicsNote", "ViewerPages", "standard"]
 
 
 def standard() -> list[Callback]:
-    """The command line's callbacks, each doing what the run's config asks of it."""
-    return [PhysicsNote(), ViewerPages(), Curves()]
+    """The command line's callbacks, each doing what the run's config asks of it: the
+    evaluation first (its ``eval/*`` entries reach the rows the others see)."""
+    return [Evaluation(), PhysicsNote(), ViewerPages(), Curves()]
 
 
 class PhysicsNote(Callback):
@@ -53,12 +56,12 @@ class ViewerPages(Callback):
             title = f"{run.cfg.env.name} / {run.cfg.algo_name}"
             self.write = viewer.make_run_writer(run.env, run.learner.act, title, batched=run.batched)
 
-    def on_chunk(self, run: RunInfo, state, chunk: int, last: bool) -> None:
-        if self.write is None or not (last or chunk % self.every == 0):
+    def on_chunk(self, run: RunInfo, chunk: ChunkInfo) -> None:
+        if self.write is None or not (chunk.last or chunk.index % self.every == 0):
             return
-        params = to_host(run.learner.policy_params(state))  # every process gathers
+        params = to_host(run.learner.policy_params(chunk.state))  # every process gathers
         if jax.process_index() == 0:
-            self.write(run.run_dir, chunk, params, jax.random.PRNGKey(run.cfg.seed + 1))
+            self.write(run.run_dir, chunk.index, params, jax.random.PRNGKey(run.cfg.seed + 1))
 
 
 class Curves(Callback):

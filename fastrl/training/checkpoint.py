@@ -4,7 +4,9 @@ A checkpoint is the learner's state pytree (params, optimiser state, normaliser,
 RNG, counters: everything ``update`` reads) and a JSON ``meta`` item holding the resolved
 config and the runner's position, so a resumed run is the same run. Orbax writes each step to
 a temporary folder and renames it when complete, so an interrupted save never replaces the
-last good checkpoint; restoring checks the config first and names every difference.
+last good checkpoint; restoring checks the config first and names every difference. A
+checkpoint is read only in the layout this fastrl saves: one of an earlier layout (metadata,
+config or state leaves that this version does not write) is refused, naming what differs.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
-from fastrl.training.config import identity_diff
+from fastrl.training.config import identity_diff, missing_identity_keys
 from fastrl.training.files import WriteError
 
 __all__ = [
@@ -32,6 +34,7 @@ __all__ = [
     "CheckpointError",
     "Checkpointer",
     "ConfigMismatch",
+    "EarlierLayout",
     "UnreadableCheckpoint",
     "quiet_library_logs",
 ]
@@ -63,42 +66,26 @@ def _pack(tree: Any) -> dict[str, Any]:
 
 
 def _unpack(packed: dict[str, Any], like: Any) -> Any:
-    """``like``'s tree from the packed leaves; a leaf absent from them (zero-size, or a step
-    metric the saving version lacked: ``_match_saved``) is zeros."""
+    """``like``'s tree from the packed leaves; a zero-size leaf (never saved) is zeros."""
     leaves, treedef = jax.tree_util.tree_flatten_with_path(like)
     out = []
     for path, x in leaves:
         key = jax.tree_util.keystr(path)
-        out.append(packed[key] if x.size and key in packed else jnp.zeros(x.shape, x.dtype))
+        out.append(packed[key] if x.size else jnp.zeros(x.shape, x.dtype))
     return jax.tree_util.tree_unflatten(treedef, out)
 
 
-# Leaves that every env step overwrites before anything reads them: per-step diagnostics, and
-# the pair each candidate contact holds (written by collision, read by the constraint rows). A
-# checkpoint saved before an env or the engine gained or lost one still restores.
-_STEP_METRICS = (".env_state.metrics[", ".data.contact_pair", ".data.contact_overflow")
-
-
-def _match_saved(target: dict[str, Any], saved: dict[str, Any] | None, where: Path) -> dict[str, Any]:
-    """``target`` fitted to the leaves a checkpoint holds (``saved``: key -> metadata; None when
-    unknown). A step-overwritten leaf (``_STEP_METRICS``) that this version adds is left out
-    (restored as zeros), one that it dropped is read and then discarded; any other difference
-    is an error that names it."""
+def _check_leaves(target: dict[str, Any], saved: dict[str, Any] | None, where: Path) -> None:
+    """Refuses a checkpoint whose state leaves (``saved``: key -> metadata; None when unknown,
+    and the restore then says what is wrong) are not those this fastrl's learner makes."""
     if saved is None:
-        return target
-    metric = lambda key: any(part in key for part in _STEP_METRICS)  # noqa: E731
-    missing = [k for k in target if k not in saved]
-    extra = [k for k in saved if k not in target]
-    other = [k for k in missing + extra if not metric(k)]
+        return
+    other = [k for k in target if k not in saved] + [k for k in saved if k not in target]
     if other:
-        raise UnreadableCheckpoint(
-            f"checkpoint {where} holds other state than this fastrl version's learner (saved by an "
-            f"incompatible version?): {', '.join(other[:6])}{' ...' if len(other) > 6 else ''}"
+        raise EarlierLayout(
+            f"checkpoint {where} holds other state leaves than this fastrl's learner makes, "
+            f"{', '.join(other[:6])}{' ...' if len(other) > 6 else ''}: {EarlierLayout.hint}"
         )
-    default = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
-    out = {k: v for k, v in target.items() if k in saved}
-    out.update({k: jax.ShapeDtypeStruct(saved[k].shape, saved[k].dtype, sharding=default) for k in extra})
-    return out
 
 
 def _target(abstract: Any) -> dict[str, jax.ShapeDtypeStruct]:
@@ -125,6 +112,15 @@ class ConfigMismatch(CheckpointError):
 
 class UnreadableCheckpoint(CheckpointError):
     """The checkpoint's files cannot be read back (corrupt, truncated, or partly deleted)."""
+
+
+class EarlierLayout(CheckpointError):
+    """The checkpoint was saved in a layout this fastrl does not read (an earlier version's)."""
+
+    hint = (
+        "it was saved in an earlier layout, which this fastrl does not read; start a new run, or "
+        "use the fastrl version that saved it"
+    )
 
 
 class Checkpointer:
@@ -203,6 +199,11 @@ class Checkpointer:
             raise UnreadableCheckpoint(
                 f"checkpoint {self.directory / str(step)} has damaged metadata: {problem}"
             )
+        missing = [k for k in _META_KEYS if k not in meta] + missing_identity_keys(meta["config"])
+        if missing:
+            raise EarlierLayout(
+                f"checkpoint {self.directory / str(step)} lacks {', '.join(missing)}: {EarlierLayout.hint}"
+            )
         return step, dict(meta)
 
     def restore_newest(self, attempt: Callable[[int], T], step: int | None = None) -> T:
@@ -254,7 +255,8 @@ class Checkpointer:
                 "resume with the same env/algo/network/seed settings, or start a new run. Differences "
                 "(saved -> now):\n  " + "\n  ".join(diffs)
             )
-        target = _match_saved(_target(abstract_state), self._saved_leaves(step), self.directory / str(step))
+        target = _target(abstract_state)
+        _check_leaves(target, self._saved_leaves(step), self.directory / str(step))
         try:
             out = self._manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(target)))
         except Exception as e:
@@ -370,8 +372,10 @@ def _drop_loop_closed(text: str) -> str:
     return "".join(x for x in text.splitlines(keepends=True) if x.strip())
 
 
-# What every checkpoint's ``meta`` item holds besides the run's config.
+# What every checkpoint's ``meta`` item holds besides the run's config: its number of env steps
+# (without it the metadata is damaged) and the runner's position (``Progress.meta``).
 _META_NUMBERS = ("env_steps",)
+_META_KEYS = ("chunk", "updates", "wall_s", "eval_history", "reached")
 
 
 def _meta_problem(meta: Any) -> str | None:

@@ -29,6 +29,7 @@ __all__ = [
     "build",
     "defaults",
     "identity_diff",
+    "missing_identity_keys",
 ]
 
 
@@ -340,7 +341,6 @@ IDENTITY_SECTIONS = ("env", "algo", "network", "seed")
 
 
 IDENTITY_TRAIN_KEYS = ("num_seeds", "vmap_sweep")
-_DEFAULTS = {"num_seeds": 1, "vmap_sweep": None}  # checkpoints saved before these options existed
 
 
 def identity_diff(saved: Mapping, current: Mapping) -> list[str]:
@@ -357,6 +357,15 @@ def identity_diff(saved: Mapping, current: Mapping) -> list[str]:
     for section in IDENTITY_SECTIONS:
         walk(saved.get(section), current.get(section), section)
     for key in IDENTITY_TRAIN_KEYS:  # the agent batch sets the state's leading axis
-        saved_value = saved.get("train", {}).get(key, _DEFAULTS[key])
-        walk(saved_value, current.get("train", {}).get(key), f"train.{key}")
+        walk(saved.get("train", {}).get(key), current.get("train", {}).get(key), f"train.{key}")
     return diffs
+
+
+def missing_identity_keys(saved: Mapping) -> list[str]:
+    """The identity settings every saved config of this fastrl holds that ``saved`` lacks: a
+    config of an earlier layout, which ``identity_diff`` cannot compare."""
+    train = saved.get("train")
+    missing = [s for s in (*IDENTITY_SECTIONS, "train") if s not in saved]
+    return missing + [
+        f"train.{k}" for k in IDENTITY_TRAIN_KEYS if isinstance(train, Mapping) and k not in train
+    ]

@@ -16,7 +16,7 @@ from fastrl import agents
 from fastrl.agents.base import Learner
 from fastrl.runtime import devices
 from fastrl.runtime.devices import to_host
-from fastrl.training import scale
+from fastrl.training import layout, scale
 from fastrl.training.config import RunConfig
 
 
@@ -91,20 +91,20 @@ class Setup:
 
 
 def make_setup(cfg: RunConfig) -> Setup:
-    """The run's env, agents, learner (built for the run's total updates) and state layout."""
+    """The run's env, agents, learner (built once, for the run's total updates, which follow
+    from its env steps per update) and the state's layout over the devices (``layout``)."""
     env = cfg.env.make()
     specs = scale.expand(cfg)
-    # The learner is built twice: first to learn its env steps per update, then with the run's
-    # total updates (which set learning-rate schedules). Building is cheap; nothing is traced.
-    steps_per_update = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, 1).env_steps_per_update
+    steps_per_update = agents.env_steps_per_update(cfg.algo_name, cfg.algo, env)
     total_updates = max(1, math.ceil(cfg.train.total_env_steps / steps_per_update))
     if (k := cfg.train.updates_per_chunk) is not None:  # fixed chunks: the budget in whole chunks
         total_updates = math.ceil(total_updates / k) * k
     mesh = devices.mesh()
-    learner, init_key = scale.run_learner(cfg, specs, env, total_updates, mesh)
+    learner_mesh = layout.learner_mesh(cfg, len(specs), mesh)
+    learner, init_key = scale.run_learner(cfg, specs, env, total_updates, learner_mesh)
     shardings, abstract = None, jax.eval_shape(learner.init, init_key)
     if mesh is not None:
-        shardings = scale.state_shardings(abstract, mesh, len(specs), learner.num_envs)
+        shardings = layout.state_shardings(abstract, mesh, len(specs), learner.num_envs)
         laid_out = lambda a, s: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=s)  # noqa: E731
         abstract = jax.tree.map(laid_out, abstract, shardings)
     return Setup(cfg=cfg, config=cfg.to_dict(), env=env, agents=Agents(specs), learner=learner,

@@ -5,9 +5,9 @@ simulator and the learner run without a host round trip per step. The number of 
 argument of that one program: chunks are sized by time (about ``train.chunk_seconds`` each,
 from the last chunk's speed; the first is one update, so the first progress line comes
 seconds after the compile) unless ``train.updates_per_chunk`` fixes them, and a chunk boundary
-costs one call. Between chunks the runner prints a progress line, evaluates the
-deterministic policy on its own schedule (``train.num_evals`` or ``train.eval_every``), logs
-(TensorBoard, ``metrics.csv``) and checkpoints (by time or every ``checkpoint.every`` chunks).
+costs one call. Between chunks the runner prints a progress line, calls its callbacks (the
+evaluation of the deterministic policy on its own schedule among them), logs (TensorBoard,
+``metrics.csv``) and checkpoints (by time or every ``checkpoint.every`` chunks).
 Ctrl-C asks the run to stop after the chunk in flight; it then saves a checkpoint and exits (a
 second Ctrl-C stops at once, without saving).
 
@@ -15,85 +15,48 @@ second Ctrl-C stops at once, without saving).
 chunk's host work in ``_after_chunk``) and its summary. Each concern is a small piece of its
 own module: the run's setup (``run_setup``: agents, learner, layout), its start (``start``: the
 folder's lock, a fresh or restored state), the compiled chunk and its size (``chunk``), where
-the run stands (``progress``: evaluation with the collapse watch and the ``stop_at_return``
+the run stands (``progress``: its position, the collapse watch and the ``stop_at_return``
 record, divergence, the decision to stop), outputs (``outputs``), signals (``signals``) and
 checkpoints. A single run is a batch of one (``run_setup.Agents``): the loop never asks which
-it is. What looks at the run (viewer pages, notes, learning curves) comes from the caller as
-``Callback`` objects: the runner imports none of those tools.
+it is. Everything else comes from the caller as ``Callback`` objects (``hooks``): the
+evaluation (``evaluation.Evaluation``, the default), and what looks at the run (viewer pages,
+notes, learning curves: ``fastrl.tools.callbacks``, which the runner never imports).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
 
-from fastrl.agents.base import Learner
 from fastrl.runtime import devices
-from fastrl.training import files, policy, scale
+from fastrl.training import files, layout, policy
 from fastrl.training.checkpoint import Checkpointer, quiet_library_logs
 from fastrl.training.chunk import ChunkSizer, Program, compile_chunk
-from fastrl.training.config import RunConfig
+from fastrl.training.config import ConfigError, RunConfig
+from fastrl.training.evaluation import Evaluation
+from fastrl.training.hooks import Callback, ChunkInfo, RunInfo
 from fastrl.training.outputs import Outputs, agent_dirs, close_outputs, open_outputs, report_chunk, write_rows
-from fastrl.training.progress import Clock, Evaluation, Progress, diverged, stop_reason
+from fastrl.training.progress import Clock, Progress, diverged, stop_reason
 from fastrl.training.run_setup import Setup, make_setup
 from fastrl.training.signals import StopFlag
 from fastrl.training.start import RunDirLock, claim_folder, open_checkpoints, place_state, start_state
 
-__all__ = ["Callback", "RunInfo", "train"]
-
-
-@dataclasses.dataclass(frozen=True)
-class RunInfo:
-    """What a callback sees of a run.
-
-    Fields:
-      cfg      the run's config
-      env      its env
-      learner  its learner (``act``, ``policy_params``): of one agent, over a batch's states
-      batched  the state's leaves have a leading agent axis (a batch of agents)
-      run_dir  the run's folder
-      outputs  each agent's folder and config: the run folder for a single run,
-               ``agents/<tag>/`` for each agent of a batch
-    """
-
-    cfg: RunConfig
-    env: Any
-    learner: Learner
-    batched: bool
-    run_dir: Path
-    outputs: tuple[tuple[Path, RunConfig], ...]
-
-
-class Callback:
-    """A piece the caller hands ``train`` to look at the run; each hook does nothing unless
-    overridden. Hooks run on every process of a multi-host run: one that writes checks
-    ``jax.process_index()``."""
-
-    def on_start(self, run: RunInfo) -> None:
-        """After the run's first line, before its first chunk."""
-
-    def on_chunk(self, run: RunInfo, state, chunk: int, last: bool) -> None:
-        """After chunk ``chunk`` and its evaluation, before its row is written; ``last``: the
-        run's budget ends with this chunk."""
-
-    def on_end(self, run: RunInfo) -> None:
-        """When the run ends (as it returns or raises), before its logs are closed."""
+__all__ = ["Callback", "ChunkInfo", "RunInfo", "train"]
 
 
 def train(
     cfg: RunConfig,
     run_dir: str | Path,
     resume: bool = False,
-    on_chunk=None,
     resume_step: int | None = None,
     record: dict[str, str] | None = None,
-    callbacks: Sequence[Callback] = (),
+    callbacks: Sequence[Callback] | None = None,
 ) -> dict[str, Any]:
     """Runs (or resumes) training into ``run_dir``.
 
@@ -106,14 +69,14 @@ def train(
       run_dir: the run's folder (config, checkpoints, logs, curve).
       resume: continue from the newest checkpoint in ``run_dir`` that can be read (an unreadable
         newer one is reported and set aside), or from ``resume_step``.
-      on_chunk: optional callback ``(chunk, row)`` after every chunk (tests use it); for a batch
-        ``row`` is the mean over agents and ``row["agents"]`` holds each agent's row.
       resume_step: with ``resume``, the chunk to continue from; newer checkpoints are moved
         to ``run_dir/checkpoints_set_aside/`` (never deleted).
       record: ``{relative path: text}`` written into ``run_dir`` with ``config.json`` once the
         run owns the folder (the command line's record of itself, e.g. ``.hydra/overrides.yaml``).
-      callbacks: what looks at the run, called at the start, after every chunk and at the end
-        (the command line's: ``fastrl.tools.callbacks.standard()``).
+      callbacks: called at the start, after every chunk and at the end, in this order (the
+        command line's: ``fastrl.tools.callbacks.standard()``). None: the evaluation alone
+        (``Evaluation()``). Without an ``Evaluation`` the run logs no evaluation, and
+        ``train.stop_at_return`` is refused.
 
     Nothing is written into ``run_dir`` before the run is known to be valid: a rejected start
     (the folder holds another run's checkpoints, the config differs from the checkpoint's, the
@@ -126,6 +89,11 @@ def train(
       ``stop_at_return`` also ``reached``: per agent the chunk, env steps, training seconds and
       return of its first evaluation at or above it (None where it never got there).
     """
+    callbacks = [Evaluation()] if callbacks is None else list(callbacks)
+    if cfg.train.stop_at_return is not None and not any(isinstance(cb, Evaluation) for cb in callbacks):
+        raise ConfigError(
+            "train.stop_at_return is checked at evaluations, but no Evaluation is among the callbacks"
+        )
     run_dir = Path(run_dir).absolute()
     run_dir.mkdir(parents=True, exist_ok=True)
     quiet_library_logs()
@@ -133,23 +101,20 @@ def train(
         files.refuse_links(run_dir)  # a folder from elsewhere is untrusted: no writes through links
         ckpt = open_checkpoints(cfg, run_dir, resume)
         try:
-            return _train(cfg, run_dir, ckpt, resume, on_chunk, resume_step, record or {}, callbacks)
+            return _train(cfg, run_dir, ckpt, resume, resume_step, record or {}, callbacks)
         finally:
             ckpt.close()
 
 
-def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, on_chunk, resume_step,
+def _train(cfg: RunConfig, run_dir: Path, ckpt: Checkpointer, resume: bool, resume_step: int | None,
            record: dict[str, str], callbacks: Sequence[Callback]) -> dict[str, Any]:  # fmt: skip
     """The run: its start, then one compiled chunk and the host's pieces at a time, until the
     budget or a stop; returns its summary."""
     clock = Clock(cfg.train.max_seconds)
     setup = make_setup(cfg)
     state, progress, program = _launch(setup, ckpt, run_dir, resume, resume_step, record)
-    evaluation, sizer = Evaluation(setup), ChunkSizer(setup)
-    info = RunInfo(
-        setup.cfg, setup.env, setup.learner, setup.agents.batched, run_dir, agent_dirs(setup, run_dir)
-    )
-    loop = _Loop(setup, program, ckpt, clock, evaluation, sizer, info, on_chunk, callbacks)
+    info = RunInfo(setup, run_dir, agent_dirs(setup, run_dir))
+    loop = _Loop(setup, program, ckpt, clock, ChunkSizer(setup), info, callbacks)
     _announce_start(setup, program, run_dir)
     for cb in callbacks:
         cb.on_start(info)
@@ -195,10 +160,8 @@ class _Loop:
     program: Program
     ckpt: Checkpointer
     clock: Clock
-    evaluation: Evaluation
     sizer: ChunkSizer
     info: RunInfo  # what the callbacks see of the run
-    on_chunk: Callable | None
     callbacks: Sequence[Callback]
 
 
@@ -227,17 +190,15 @@ def _chunks(
 
 def _after_chunk(loop: _Loop, state, progress: Progress, rows: list[dict], outs: list[Outputs],
                  stop: StopFlag, dt: float, n: int) -> tuple[dict, str | None]:  # fmt: skip
-    """The host's work after a chunk of ``n`` updates in ``dt`` seconds: its report, evaluation,
-    callbacks, rows and checkpoint; returns the run's row and why the run ends here (or None)."""
+    """The host's work after a chunk of ``n`` updates in ``dt`` seconds: its report, callbacks
+    (the evaluation among them), rows and checkpoint; returns the run's row and why the run ends
+    here (or None)."""
     setup = loop.setup
     report_chunk(setup, progress, rows, state, dt, n, loop.program.compile_s)
-    if loop.evaluation.due(progress, n):
-        loop.evaluation(state, rows, progress)
+    chunk = ChunkInfo(progress.chunk, n, progress.done(setup), state, rows, progress)
     for cb in loop.callbacks:
-        cb.on_chunk(loop.info, state, progress.chunk, progress.done(setup))
+        cb.on_chunk(loop.info, chunk)
     row = write_rows(setup, rows, outs)
-    if loop.on_chunk is not None:
-        loop.on_chunk(progress.chunk, row)
     stop.agree()  # a signal to one process stops them all
     ending = stop_reason(setup, progress, stop.set, loop.clock)
     with stop.saving():
@@ -258,7 +219,7 @@ def _announce_start(setup: Setup, program: Program, run_dir: Path) -> None:
         size = f"{setup.total_updates:,d} {size} in chunks of ~{cfg.train.chunk_seconds:g}s"
     print(
         f"[fastrl] {cfg.env.name} / {cfg.algo_name}: {size}; chunk compiled in "
-        f"{program.compile_s:.1f}s ({program.note}) on {scale.describe(setup.shardings, setup.mesh)}; "
+        f"{program.compile_s:.1f}s ({program.note}) on {layout.describe(setup.shardings, setup.mesh)}; "
         f"run dir {run_dir}"
     )
 

@@ -1,23 +1,15 @@
-"""Many agents in one program, and one program over many devices.
+"""Many agents in one program.
 
-**Agent batches.** ``train.num_seeds=N`` and ``train.vmap_sweep={learning_rate: [a, b]}`` train
-every combination of swept values and seeds as independent agents inside ONE compiled program:
-the learner's ``init`` and ``update`` are ``vmap``-ed over a leading agent axis of the whole
-training state. A swept hyperparameter enters the program as a traced per-agent value (the
-learner is built inside the vmapped function with that leaf replaced by a tracer), so only
-leaves that the learner uses arithmetically can be swept: float-typed algorithm options such
-as learning rates, entropy costs or discounts. Options that decide shapes or program structure
-(batch sizes, schedules, switches) are refused; sweep those with Hydra multirun (``-m``).
-Agent ``i`` uses the same RNG stream as a single run with its seed, so it reproduces that run.
-
-**Devices.** When more than one device is visible (GPUs, or CPU devices made with
-``XLA_FLAGS=--xla_force_host_platform_device_count=N``), the training state is laid out over a
-one-axis mesh: an agent batch that divides evenly is split by agent; otherwise the env batch
-inside the state is split by environment and everything else is replicated. XLA inserts the
-gradient all-reduce; the math is that of the one-device program up to summation order.
-Learners that split their own work (``learner_splits``: PPO) get the mesh and use ``shard_map``
-for the env step and the minibatch gradients, which XLA's automatic partitioning does not split.
-The mesh itself and ``to_host`` live in ``fastrl.runtime.devices``.
+``train.num_seeds=N`` and ``train.vmap_sweep={learning_rate: [a, b]}`` train every combination
+of swept values and seeds as independent agents inside ONE compiled program: the learner's
+``init`` and ``update`` are ``vmap``-ed over a leading agent axis of the whole training state. A
+swept hyperparameter enters the program as a traced per-agent value (the learner is built inside
+the vmapped function with that leaf replaced by a tracer), so only leaves that the learner uses
+arithmetically can be swept: float-typed algorithm options such as learning rates, entropy costs
+or discounts. Options that decide shapes or program structure (batch sizes, schedules, switches)
+are refused; sweep those with Hydra multirun (``-m``). Agent ``i`` uses the same RNG stream as a
+single run with its seed, so it reproduces that run. How a batch (or a single run) is laid out
+over several devices is ``fastrl.training.layout``'s to decide.
 """
 
 from __future__ import annotations
@@ -29,27 +21,13 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import Mesh
 
 from fastrl import agents
 from fastrl.agents.base import Learner
-from fastrl.envs.episode import State
-from fastrl.runtime.devices import DEVICE_AXIS, mesh, to_host
 from fastrl.training.config import ConfigError, RunConfig
 
-__all__ = [
-    "AgentSpec",
-    "batch_learner",
-    "describe",
-    "expand",
-    "init_keys",
-    "learner_splits",
-    "mesh",
-    "run_learner",
-    "state_shardings",
-    "sweepable_fields",
-    "to_host",
-]
+__all__ = ["AgentSpec", "batch_learner", "expand", "init_keys", "run_learner", "sweepable_fields"]
 
 
 def sweepable_fields(algo_name: str) -> list[str]:
@@ -157,73 +135,18 @@ def init_keys(specs: list[AgentSpec]) -> jax.Array:
 
 
 def run_learner(
-    cfg: RunConfig, specs: list[AgentSpec], env, total_updates: int, m: Mesh | None
+    cfg: RunConfig, specs: list[AgentSpec], env, total_updates: int, learner_mesh: Mesh | None
 ) -> tuple[Learner, jax.Array]:
     """The learner a run trains and the key its ``init`` takes.
 
     A batch of agents is ``batch_learner`` with ``init_keys``; a single run (a batch of one,
-    whose state has no agent axis) is the learner itself with ``PRNGKey(seed)``, splitting its
-    own work over mesh ``m`` where it can (``learner_splits``).
+    whose state has no agent axis) is its agent's learner (a ``vmap_sweep`` of one value sets
+    that value) with ``PRNGKey(seed)``, splitting its own work over ``learner_mesh`` when given
+    (``fastrl.training.layout.learner_mesh``).
     """
     if len(specs) > 1:
         return batch_learner(cfg, specs, env, total_updates), init_keys(specs)
-    split = m if learner_splits(cfg, m) else None
-    learner = agents.make_learner(cfg.algo_name, cfg.algo, env, cfg.network, total_updates, mesh=split)
-    return learner, jax.random.PRNGKey(cfg.seed)
-
-
-# ----------------------------------------------------------------------------- devices
-
-
-def learner_splits(cfg: RunConfig, m: Mesh | None) -> bool:
-    """Whether a single run's learner should split its own work over mesh ``m``'s devices.
-
-    Learners that can (``agents.splits_over_devices``: PPO) step each device's slice of the
-    environments and compute each device's share of every minibatch gradient explicitly
-    (``shard_map``), which XLA's automatic partitioning does not find: it ran PPO's minibatch
-    gradients in full on every device, so 2 CPU devices were no faster than one. That needs the
-    env batch and the minibatch to divide evenly over the devices; otherwise the run is laid out
-    by ``state_shardings`` alone.
-    """
-    return m is not None and agents.splits_evenly(cfg.algo_name, cfg.algo, m.devices.size)
-
-
-def state_shardings(state: Any, m: Mesh, n_agents: int, num_envs: int | None) -> Any:
-    """Per-leaf ``NamedSharding`` of a training state on mesh ``m``.
-
-    Agent batches that divide evenly over the devices split every leaf's leading (agent) axis.
-    Otherwise the env batch is split: the leaves of the state's env states (each ``envs.State``
-    in it, found by type) whose env axis (axis 0, or 1 after an agent axis) has ``num_envs``
-    (``Learner.num_envs``) entries divisible by the device count. The rest is replicated.
-    """
-    ndev = m.devices.size
-    replicated = NamedSharding(m, PartitionSpec())
-    axis = 1 if n_agents > 1 else 0
-    by_agent = n_agents > 1 and n_agents % ndev == 0
-    by_env = NamedSharding(m, PartitionSpec(*([None] * axis), DEVICE_AXIS))
-    envs_split = bool(num_envs) and num_envs % ndev == 0
-
-    def one(x, env_leaf: bool):
-        if x.size == 0:  # empty buffers (no sites, no contacts): nothing to split
-            return replicated
-        if by_agent:
-            return NamedSharding(m, PartitionSpec(DEVICE_AXIS))
-        if env_leaf and envs_split and x.ndim > axis and x.shape[axis] == num_envs:
-            return by_env
-        return replicated
-
-    def node(x):
-        if isinstance(x, State):
-            return jax.tree.map(lambda leaf: one(leaf, True), x)
-        return one(x, False)
-
-    return jax.tree.map(node, state, is_leaf=lambda x: isinstance(x, State))
-
-
-def describe(shardings: Any, m: Mesh | None) -> str:
-    """One line for the run's banner: devices and how many state leaves are split."""
-    if m is None:
-        return f"1 device ({jax.devices()[0].platform})"
-    leaves = jax.tree.leaves(shardings)
-    split = sum(1 for s in leaves if any(p is not None for p in s.spec))
-    return f"{m.devices.size} {jax.devices()[0].platform} devices, {split}/{len(leaves)} state leaves split"
+    (one,) = specs
+    algo = one.config.algo
+    learner = agents.make_learner(cfg.algo_name, algo, env, cfg.network, total_updates, mesh=learner_mesh)
+    return learner, jax.random.PRNGKey(one.seed)

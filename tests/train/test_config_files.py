@@ -1,4 +1,5 @@
-"""conf/ holds only what differs from the config dataclasses, whose defaults are the only ones."""
+"""conf/ holds only what differs from the config dataclasses and the envs' constructors, whose
+defaults are the only ones."""
 
 import dataclasses
 from pathlib import Path
@@ -7,8 +8,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from fastrl import agents
-from fastrl.cli.train import CONF_DIR
+from fastrl import agents, envs
+from fastrl.cli.conf import CONF_DIR
 from fastrl.training.config import SECTIONS, RunConfig, defaults
 
 CONF = Path(CONF_DIR)
@@ -54,13 +55,35 @@ def test_conf_files_set_only_fields_and_repeat_no_default(path):
         assert not unknown, f"{path}: {section}.{unknown} are not fields of {cls.__name__}"
         if pinned:
             continue
-        base = defaults(cls)
-        repeated = sorted(
-            k for k, v in values.items()
-            if k in base and v == base[k] and isinstance(v, bool) == isinstance(base[k], bool)
-        )  # fmt: skip
+        repeated = _repeated(values, defaults(cls))
         where = f"{section}." if section else ""
         assert not repeated, f"{path} repeats {cls.__name__}'s defaults of {where}{repeated}: drop them"
+        if section == "env" and values.get("name") in envs.names():  # the env's own options
+            repeated = _repeated(values.get("options") or {}, envs.options(values["name"]))
+            assert not repeated, f"{path} repeats {values['name']}'s defaults of env.options.{repeated}"
+
+
+def _repeated(values: dict, base: dict) -> list[str]:
+    """The keys of ``values`` that hold ``base``'s value (a bool never equals a number)."""
+    return sorted(
+        k for k, v in values.items()
+        if k in base and v == base[k] and isinstance(v, bool) == isinstance(base[k], bool)
+    )  # fmt: skip
+
+
+def test_every_env_is_a_choice_with_its_constructors_options():
+    """``env=<name>`` works for every registered env without a file of its own: the env group is
+    the registry, each option holding the env's name and its constructor's options with their
+    defaults (``envs.options``), every one overridable as ``env.options.key=value``."""
+    with initialize_config_dir(config_dir=CONF_DIR, version_base=None):
+        for name in envs.names():
+            # algo=sac: no experiment of SAC sets env options
+            cfg = compose("train", overrides=[f"env={name}", "algo=sac", "run_dir=/unused"])
+            assert cfg.env.name == name
+            assert OmegaConf.to_container(cfg.env.options) == envs.options(name), name
+            changed = [f"env.options.{key}=7" for key in envs.options(name)]
+            cfg = compose("train", overrides=[f"env={name}", "algo=sac", *changed, "run_dir=/unused"])
+            assert OmegaConf.to_container(cfg.env.options) == dict.fromkeys(envs.options(name), 7)
 
 
 @pytest.mark.parametrize("algo", sorted(agents.ALGORITHMS))

@@ -14,7 +14,8 @@ from hydra.errors import MissingConfigException
 
 from fastrl import agents, envs
 from fastrl.agents.ppo import gae
-from fastrl.cli.train import CONF_DIR, run
+from fastrl.cli.conf import CONF_DIR
+from fastrl.cli.train import run
 from fastrl.training.checkpoint import CheckpointError
 from fastrl.training.config import ConfigError, RunConfig
 
@@ -115,15 +116,16 @@ def test_resume_2_plus_2_chunks_equals_4_chunks_bit_for_bit(tmp_path):
 
 
 def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path, capsys):
-    def interrupt(chunk, row):
-        if chunk == 1:
-            os.kill(os.getpid(), signal.SIGINT)
+    from fastrl.training import Callback, Evaluation, runner
 
-    from fastrl.training import runner
+    class Interrupt(Callback):
+        def on_chunk(self, run, chunk):
+            if chunk.index == 1:
+                os.kill(os.getpid(), signal.SIGINT)
 
     cfg = compose_cfg([*QUICK_RESUME, f"run_dir={tmp_path}"])
     rc = typed(QUICK_RESUME)
-    out = runner.train(rc, tmp_path, on_chunk=interrupt)
+    out = runner.train(rc, tmp_path, callbacks=[Evaluation(), Interrupt()])
     assert out["status"] == "stopped" and out["chunks"] == 1 and out["interrupted"]
     assert (tmp_path / "checkpoints" / "1").is_dir()
     # the stop says how to continue (and the command line exits 130, the shell's Ctrl-C code)
@@ -132,6 +134,19 @@ def test_ctrl_c_saves_a_checkpoint_and_stops(tmp_path, capsys):
         f"fastrl.train resume={tmp_path}" in capsys.readouterr().out
     )
     del cfg
+
+
+def test_evaluation_is_a_callback_the_command_line_hands_the_runner(tmp_path):
+    """The runner evaluates through its ``Evaluation`` callback: the default, the command line's
+    first; a run whose callbacks have none cannot stop at an evaluation return, and is refused
+    before anything is written."""
+    from fastrl.tools import callbacks
+    from fastrl.training import Evaluation, runner
+
+    assert isinstance(callbacks.standard()[0], Evaluation)
+    with pytest.raises(ConfigError, match="stop_at_return.*no Evaluation is among the callbacks"):
+        runner.train(typed([*QUICK, "train.stop_at_return=100"]), tmp_path / "run", callbacks=[])
+    assert not (tmp_path / "run").exists()
 
 
 def test_max_seconds_stops_the_run_on_time_with_a_checkpoint(tmp_path, capsys):
@@ -338,26 +353,45 @@ def test_load_policy_and_evaluate_cli(tmp_path, capsys):
 
 
 def test_cpu_devices_per_core_for_ppo_only(monkeypatch):
-    """The command line gives PPO one CPU device per core, as many as divide its batches."""
+    """The command line gives PPO one CPU device per core, as many as divide its batches: the
+    layout's decision (``fastrl.training.layout``), which ``FASTRL_CPU_DEVICES`` overrides."""
     from fastrl.cli import train
+    from fastrl.training import layout
 
     monkeypatch.delenv("FASTRL_CPU_DEVICES", raising=False)
     ppo = typed(["env=inverted_pendulum", "algo=ppo", "algo.num_envs=6", "algo.unroll_length=4"])
     assert ppo.algo.minibatch_size % 2 == 0
-    assert train.cpu_devices(ppo, 2) == 2
-    assert train.cpu_devices(ppo, 4) == 3  # 4 does not divide 6 envs; 3 divides both batches
-    assert train.cpu_devices(ppo, 1) == 1
-    assert train.cpu_devices(typed(["env=inverted_pendulum", "algo=sac"]), 2) == 1
+    assert train.cpu_devices(ppo, 2) == layout.cpu_devices(ppo, 2) == 2
+    assert layout.cpu_devices(ppo, 4) == 3  # 4 does not divide 6 envs; 3 divides both batches
+    assert layout.cpu_devices(ppo, 1) == 1
+    assert layout.cpu_devices(typed(["env=inverted_pendulum", "algo=sac"]), 2) == 1
     seeds = typed(["env=inverted_pendulum", "algo=ppo", "train.num_seeds=2"])
-    assert train.cpu_devices(seeds, 2) == 1  # agent batches keep one device
+    assert layout.cpu_devices(seeds, 2) == 1  # agent batches keep one device
     # robot tasks whose step runs slower split keep one device; the Go1's splits
-    assert train.cpu_devices(typed(["env=humanoid_joystick", "algo=ppo"]), 2) == 1
-    assert train.cpu_devices(typed(["env=go1_joystick", "algo=ppo"]), 2) == 2
+    assert layout.cpu_devices(typed(["env=humanoid_joystick", "algo=ppo"]), 2) == 1
+    assert layout.cpu_devices(typed(["env=go1_joystick", "algo=ppo"]), 2) == 2
+    # the learner splits its own work over exactly those device counts, and only in a single run
+    assert [layout.learner_splits(ppo, 1, n) for n in (1, 2, 3, 4)] == [False, True, True, False]
+    assert not layout.learner_splits(ppo, 2, 2)
     monkeypatch.setenv("FASTRL_CPU_DEVICES", "1")
     assert train.cpu_devices(ppo, 2) == 1
     monkeypatch.setenv("FASTRL_CPU_DEVICES", "two")
     with pytest.raises(ConfigError, match="FASTRL_CPU_DEVICES='two'"):
         train.cpu_devices(ppo, 2)
+
+
+@pytest.mark.parametrize("algo", sorted(agents.ALGORITHMS))
+def test_a_start_builds_its_learner_once(monkeypatch, algo):
+    """The run's env steps per update come from the learner's registry record, so its total
+    updates are known before the learner is built, once; the built learner agrees."""
+    from fastrl.training import run_setup
+
+    built = []
+    make = agents.make_learner
+    monkeypatch.setattr(agents, "make_learner", lambda *a, **k: built.append(a) or make(*a, **k))
+    setup = run_setup.make_setup(typed([*QUICK, f"algo={algo}"]))
+    assert len(built) == 1 and built[0][4] == setup.total_updates
+    assert setup.steps_per_update == setup.learner.env_steps_per_update
 
 
 def test_cli_xla_flags_keep_what_the_user_set(monkeypatch):

@@ -6,6 +6,7 @@ real links to files outside the folder and compare those files' bytes afterwards
 write-failure checks run ``python -m fastrl.train`` in a child process, as users do.
 """
 
+import json
 import os
 import resource
 import shutil
@@ -18,8 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fastrl.cli.train import resumed_config, run
-from fastrl.training import runner
+from fastrl.cli.resume import resumed_config
+from fastrl.cli.train import run
+from fastrl.training import Callback, Evaluation, runner
 from fastrl.training.checkpoint import Checkpointer
 from fastrl.training.config import ConfigError
 from fastrl.training.files import RunDirError
@@ -138,6 +140,45 @@ def test_damaged_checkpoint_metadata_falls_back_to_the_one_before(saved_run, tmp
     assert "at 256 env steps" in out and "using step 1 instead" in err and "metadata" in err
 
 
+def test_a_checkpoint_of_an_earlier_layout_is_refused_naming_what_differs(saved_run, tmp_path):
+    """Only checkpoints in the layout this fastrl saves are read: an earlier layout's metadata,
+    config or state leaves are refused at once (no fallback to an older step of the same run),
+    naming what differs, and its checkpoints are left as they were."""
+    import jax
+    import jax.numpy as jnp
+
+    from fastrl.training import checkpoint
+    from fastrl.training.policy import load_run
+
+    run_dir = _copy(saved_run, tmp_path / "run")
+    for meta in run_dir.glob("checkpoints/*/meta/metadata"):  # before time-sized chunks and evaluations
+        saved = json.loads(meta.read_text())
+        del saved["updates"], saved["eval_history"]
+        meta.write_text(json.dumps(saved))
+    before = sorted((p, p.stat().st_mtime_ns) for p in (run_dir / "checkpoints").rglob("*"))
+    for attempt in (lambda: load_run(run_dir), lambda: _resume(run_dir)):
+        with pytest.raises(
+            checkpoint.EarlierLayout, match="checkpoints/2 lacks updates, eval_history: .*earlier layout"
+        ):
+            attempt()
+    assert sorted((p, p.stat().st_mtime_ns) for p in (run_dir / "checkpoints").rglob("*")) == before
+    # a config from before agent batches: the resume names the settings it lacks
+    config = json.loads((run_dir / "config.json").read_text())
+    del config["train"]["num_seeds"], config["train"]["vmap_sweep"]
+    (run_dir / "config.json").write_text(json.dumps(config))
+    with pytest.raises(
+        checkpoint.EarlierLayout, match="lacks train.num_seeds, train.vmap_sweep: .*earlier layout"
+    ):
+        resumed_config(run_dir, [])
+    # state leaves this fastrl's learner does not make (or lacks)
+    target = {"['params']": jax.ShapeDtypeStruct((2,), jnp.float32)}
+    saved_leaves = {"['params']": None, "['env_state'].metrics['old']": None}
+    with pytest.raises(
+        checkpoint.EarlierLayout, match=r"other state leaves.*metrics\['old'\]: .*earlier layout"
+    ):
+        checkpoint._check_leaves(target, saved_leaves, run_dir)
+
+
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
 def test_non_finite_numbers_in_the_config_are_named(value):
     with pytest.raises(ConfigError, match=f"train.total_env_steps={value} should be a finite number"):
@@ -173,13 +214,14 @@ def test_a_damaged_config_json_resumes_with_the_checkpoints_config_on_the_same_d
 
 
 def test_sigterm_stops_after_the_chunk_saves_and_resumes_bit_for_bit(tmp_path, capsys):
-    def terminate(chunk, row):
-        if chunk == 1:
-            os.kill(os.getpid(), signal.SIGTERM)
+    class Terminate(Callback):
+        def on_chunk(self, run, chunk):
+            if chunk.index == 1:
+                os.kill(os.getpid(), signal.SIGTERM)
 
     split, full = tmp_path / "split", tmp_path / "full"
     handler = signal.getsignal(signal.SIGTERM)
-    out = runner.train(typed(QUICK_RESUME), split, on_chunk=terminate)
+    out = runner.train(typed(QUICK_RESUME), split, callbacks=[Evaluation(), Terminate()])
     assert out["status"] == "stopped" and out["chunks"] == 1 and out["signal"] == signal.SIGTERM
     said = capsys.readouterr().out
     assert "stopped by SIGTERM after chunk 1 of 4, checkpoint saved" in said

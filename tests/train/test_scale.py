@@ -46,6 +46,20 @@ def test_bad_agent_batches_are_refused_before_compiling(override, message):
         scale.expand(typed([*QUICK, override]))
 
 
+def test_a_sweep_of_one_value_trains_that_value(monkeypatch):
+    """A ``vmap_sweep`` of one value with one seed is a batch of one agent: a single run, whose
+    learner has the swept value (it had the unswept config's before)."""
+    cfg = typed([*QUICK, "train.vmap_sweep={learning_rate:[7e-4]}"])
+    assert cfg.algo.learning_rate != 7e-4
+    built = []
+    make = agents.make_learner
+    monkeypatch.setattr(
+        agents, "make_learner", lambda name, algo, *a, **k: built.append(algo) or make(name, algo, *a, **k)
+    )
+    scale.run_learner(cfg, scale.expand(cfg), cfg.env.make(), 4, None)
+    assert [algo.learning_rate for algo in built] == [7e-4]
+
+
 def _two_updates(learner):
     return jax.jit(lambda s: jax.lax.scan(lambda s, _: learner.update(s), s, None, length=2))
 

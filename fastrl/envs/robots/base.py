@@ -20,6 +20,10 @@ class RobotTask(Env):
 
     scene: str = ""
     linesearch = "mujoco"
+    # Domain randomisation on by default, as Playground's tasks train: contact friction +-20%,
+    # masses +-10%, servo gains +-10% (each over the scene's own)
+    default_randomization = {"friction": 0.2, "mass": 0.1, "gain": 0.1}
+    action_scale = 0.5  # an action of 1 moves a servo's target this far from its reference
 
     def __init__(self, *, asset: str | None = None, **kwargs):
         """Arguments as ``Env``'s (``asset`` defaults to the Playground scene)."""
@@ -73,8 +77,11 @@ class JoystickTask(RobotTask):
     command, or to drive it in the viewer. ``observation_noise`` scales the observation noise
     (0: none)."""
 
-    def __init__(self, *, command=None, observation_noise: float = 1.0, **kwargs):
-        """Arguments as ``RobotTask``'s, and ``command`` and ``observation_noise`` above."""
+    default_randomization = {"friction": 0.3, "mass": 0.1, "gain": 0.1}  # floor friction +-30%
+    gradient_note = "the robot moves only through foot contacts, whose gradients are zero or explosive"
+
+    def __init__(self, *, observation_noise: float = 1.0, command=None, **kwargs):
+        """Arguments as ``RobotTask``'s, and ``observation_noise`` and ``command`` above."""
         super().__init__(**kwargs)
         self.observation_noise = float(observation_noise)
         if command is not None:

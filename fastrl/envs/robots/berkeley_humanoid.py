@@ -60,16 +60,12 @@ class BerkeleyHumanoidJoystick(JoystickTask):
     splits_over_devices = False
     scene = "playground/locomotion/berkeley_humanoid/scene_mjx_feetonly_flat_terrain"
     default_frame_skip = 10
-    default_episode_length = 1000
-    default_randomization = {"friction": 0.3, "mass": 0.1, "gain": 0.1}
     default_weights = {
         "tracking_lin_vel": 1.0, "tracking_ang_vel": 0.5, "ang_vel_xy": 0.15, "orientation": 1.0,
         "torques": 2.5e-5, "action_rate": 0.01, "feet_air_time": 2.0, "feet_slip": 0.25,
         "feet_phase": 1.0, "termination": 1.0, "joint_deviation_knee": 0.1, "joint_deviation_hip": 0.25,
         "dof_pos_limits": 1.0, "pose": 1.0,
     }  # fmt: skip
-    gradient_note = "the robot moves only through foot contacts, whose gradients are zero or explosive"
-    action_scale = 0.5
     command_limit = 1.0
     command_zero = 0.1  # probability that a drawn command is all zero
     resample_steps = 500

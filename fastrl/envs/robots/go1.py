@@ -53,16 +53,12 @@ class Go1Joystick(JoystickTask):
     name = "go1_joystick"
     scene = "playground/locomotion/go1/scene_mjx_feetonly_flat_terrain"
     default_frame_skip = 5
-    default_episode_length = 1000
-    default_randomization = {"friction": 0.3, "mass": 0.1, "gain": 0.1}
     default_weights = {
         "tracking_lin_vel": 1.0, "tracking_ang_vel": 0.5, "lin_vel_z": 0.5, "ang_vel_xy": 0.05,
         "orientation": 5.0, "torques": 2e-4, "action_rate": 0.01, "energy": 1e-3, "pose": 0.5,
         "stand_still": 1.0, "dof_pos_limits": 1.0, "feet_clearance": 2.0, "feet_slip": 0.1,
         "feet_air_time": 0.1, "feet_height": 0.2, "termination": 1.0,
     }  # fmt: skip
-    gradient_note = "the robot moves only through foot contacts, whose gradients are zero or explosive"
-    action_scale = 0.5
     command_limits = (1.5, 0.8, 1.2)  # forward m/s, sideways m/s, yaw rad/s
     command_nonzero = (0.9, 0.25, 0.5)  # probability that a redrawn component is not zero
     resample_seconds = 5.0  # mean time between command redraws

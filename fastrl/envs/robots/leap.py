@@ -74,8 +74,6 @@ class LeapCubeReorient(RobotTask):
     splits_over_devices = False
     scene = "playground/manipulation/leap_hand/scene_mjx_cube"
     default_frame_skip = 5
-    default_episode_length = 1000
-    default_randomization = {"friction": 0.2, "mass": 0.1, "gain": 0.1}
     default_weights = {
         "orientation": 5.0, "position": 0.5, "termination": 100.0, "hand_pose": 0.5,
         "action_rate": 1e-3, "energy": 1e-3, "success": 100.0,
@@ -85,7 +83,6 @@ class LeapCubeReorient(RobotTask):
     mjx_caps = True
     uncapped_nconmax = 32
     capped_nconmax = 16  # the scene's max_contact_points is 30; see the class docstring
-    action_scale = 0.5
     success_angle = 0.1
     # control steps before a near target is drawn (``near_targets``): dropped onto the palm with
     # the hand still, the cube turns by a median 0.57 rad, and no more after 10 steps

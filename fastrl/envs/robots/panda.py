@@ -49,7 +49,6 @@ class PandaPickCube(RobotTask):
     scene = "playground/manipulation/franka_emika_panda/mjx_single_cube"
     default_frame_skip = 4
     default_episode_length = 150
-    default_randomization = {"friction": 0.2, "mass": 0.1, "gain": 0.1}
     default_weights = {
         "gripper_box": 4.0,
         "box_target": 8.0,
