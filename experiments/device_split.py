@@ -15,42 +15,19 @@ import json
 import os
 import subprocess
 import sys
-import time
 
-from experiments import results
+import jax
+
+import fastrl
+from experiments import bench_envs, results
 
 
-def measure(name: str, batch: int, steps: int = 10, repeats: int = 3) -> dict:
-    import jax
-
-    import fastrl
-
+def measure(name: str, batch: int) -> dict:
     fastrl.use_recommended_xla_flags()
-    from fastrl import envs
-
-    env = envs.make(name)
-    low, high = (jax.numpy.asarray(b) for b in env.action_bounds)
-    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), batch))
-    step = envs.over_devices(jax.vmap(env.step), envs.batch_mesh(batch))
-
-    def run(state, key):
-        def one(s, k):
-            a = jax.random.uniform(k, (batch, env.action_size), minval=low, maxval=high)
-            return step(s, a), None
-
-        return jax.lax.scan(one, state, jax.random.split(key, steps))[0]
-
-    t0 = time.perf_counter()
-    compiled = jax.jit(run).lower(state, jax.random.PRNGKey(1)).compile()
-    compile_s = time.perf_counter() - t0
-    state = jax.block_until_ready(compiled(state, jax.random.PRNGKey(1)))
-    best = float("inf")
-    for i in range(repeats):
-        t0 = time.perf_counter()
-        state = jax.block_until_ready(compiled(state, jax.random.PRNGKey(2 + i)))
-        best = min(best, time.perf_counter() - t0)
-    return {"env": name, "devices": jax.device_count(), "batch": batch,
-            "control_steps_per_s": round(batch * steps / best), "compile_s": round(compile_s, 1)}  # fmt: skip
+    r = bench_envs.bench_fastrl(name, batch, steps=10, repeats=3)
+    rate, compile_s = round(r["control_steps_per_s"]), round(r["compile_s"], 1)
+    return {"env": name, "devices": jax.device_count(), "batch": batch, "control_steps_per_s": rate,
+            "compile_s": compile_s}  # fmt: skip
 
 
 def main() -> None:
