@@ -55,8 +55,8 @@ class BerkeleyHumanoidJoystick(JoystickTask):
     """
 
     name = "humanoid_joystick"
-    # split over 2 CPU devices the step runs at 0.41x of one device's speed (robot_throughput.md):
-    # why is not yet known (go1_joystick, one Newton iteration per step, runs 2.3x faster split)
+    # one device: the env step alone now runs faster split over 2 CPU devices (device_split.md),
+    # but no training run split over 2 has been measured for this task yet
     splits_over_devices = False
     scene = "playground/locomotion/berkeley_humanoid/scene_mjx_feetonly_flat_terrain"
     default_frame_skip = 10

@@ -68,9 +68,8 @@ class LeapCubeReorient(RobotTask):
     """
 
     name = "leap_cube_reorient"
-    # split over 2 CPU devices the step runs slower than on one (robot_throughput.md): the dense
-    # Newton Hessian is factorised in plain XLA there (go1_joystick, one Newton iteration per
-    # step, runs faster split)
+    # one device: the env step alone now runs faster split over 2 CPU devices (device_split.md),
+    # but no training run split over 2 has been measured for this task yet
     splits_over_devices = False
     scene = "playground/manipulation/leap_hand/scene_mjx_cube"
     default_frame_skip = 5

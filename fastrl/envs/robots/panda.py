@@ -43,8 +43,8 @@ class PandaPickCube(RobotTask):
     """
 
     name = "panda_pick_cube"
-    # split over 2 CPU devices the step runs at 0.76x of one device's speed (robot_throughput.md):
-    # why is not yet known (go1_joystick, one Newton iteration per step, runs 2.3x faster split)
+    # one device: the env step alone now runs faster split over 2 CPU devices (device_split.md),
+    # but no training run split over 2 has been measured for this task yet
     splits_over_devices = False
     scene = "playground/manipulation/franka_emika_panda/mjx_single_cube"
     default_frame_skip = 4
