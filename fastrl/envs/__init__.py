@@ -1,7 +1,8 @@
 """Functional environments with Gymnasium v5 semantics, and a batched Gymnasium vector API."""
 
-from fastrl.envs.base import Env, Randomization
+from fastrl.envs.base import Env
 from fastrl.envs.episode import State
+from fastrl.envs.randomization import Randomization
 from fastrl.envs.registry import env_class, make, names, options, register
 from fastrl.runtime.devices import batch_mesh, over_devices
 

@@ -16,7 +16,6 @@ those MuJoCo's ``mjData`` holds after ``mj_step``.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
@@ -25,45 +24,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl import physics
-from fastrl.envs import episode
+from fastrl.envs import episode, randomization, wrappers
 from fastrl.envs.episode import State
+from fastrl.envs.randomization import Randomization
 from fastrl.physics import Data, Model
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
-
-
-@dataclasses.dataclass(frozen=True)
-class Randomization:
-    """Domain randomisation: per-env model parameters drawn at every reset (0 width = off).
-
-    Scales are multiplicative and uniform in ``[1 - w, 1 + w]``. Mass scales each body's mass
-    and rotational inertia together (a density change); friction scales every contact pair's
-    friction coefficients; damping scales every dof's damping; gain scales each actuator's
-    gain and its position feedback together (a position servo's ``kp``; a motor's gear).
-    Quantities MuJoCo precomputes at compile time from the nominal model (``body_invweight0``,
-    which sets contact softness) are not recomputed, as in MJX.
-
-    Fields:
-      mass        half-width of the per-body mass scale
-      friction    half-width of the per-env friction scale
-      damping     half-width of the per-dof damping scale
-      gain        half-width of the per-actuator gain scale
-    """
-
-    mass: float = 0.0
-    friction: float = 0.0
-    damping: float = 0.0
-    gain: float = 0.0
-
-    def __post_init__(self):
-        for name in ("mass", "friction", "damping", "gain"):
-            w = getattr(self, name)
-            if not 0.0 <= w < 1.0:
-                raise ValueError(f"randomization.{name}={w}: the half-width must be in [0, 1)")
-
-    @property
-    def enabled(self) -> bool:
-        return bool(self.mass or self.friction or self.damping or self.gain)
 
 
 class Env:
@@ -104,6 +70,10 @@ class Env:
     mjx_caps: bool = False
     # contact slots (``physics.load_mjcf(nconmax=...)``); None: the scene's or the loader's rule
     nconmax: int | None = None
+    # ``Data`` fields beyond the state and the kinematics (``episode.STATE_FIELDS``,
+    # ``episode.KINEMATICS``) that the task's reward reads of the data a step starts from: an
+    # auto-reset must carry them into the new episode (``carried_fields``)
+    carried_at_reset: tuple[str, ...] = ()
     # Whether the training command line may split this env's batch over one CPU device per core
     # (``fastrl.training.layout.cpu_devices``); False where the step runs slower split than on one
     # device.
@@ -269,8 +239,8 @@ class Env:
     def reset(self, key: jax.Array) -> State:
         """A fresh episode drawn from ``key`` (one env; vmap over keys for a batch)."""
         key, reset_key, param_key = jax.random.split(key, 3)
-        params = self._sample_params(param_key)
-        model = self._model(params)
+        params = randomization.sample(self.randomization, self.model, param_key)
+        model = randomization.apply(self.model, params)
         data = self._reset_data(reset_key, model)
         task = self._sample_task(jax.random.fold_in(reset_key, 7), model, data)
         obs = self._observe_task(model, data, task)
@@ -291,7 +261,7 @@ class Env:
           key: key for later auto-resets and randomised parameters (default: PRNGKey(0)).
         """
         state = self.reset(jax.random.PRNGKey(0) if key is None else key)
-        model = self._model(state.params)
+        model = randomization.apply(self.model, state.params)
         data = physics.make_data(model, qpos=qpos, qvel=qvel)
         data = physics.forward_forces(model, data)
         obs = self._observe_task(model, data, state.task)
@@ -307,7 +277,7 @@ class Env:
         Returns:
           The next state. If the episode ended, ``obs``/``data`` already belong to a new
           episode and ``final_obs`` is the finished episode's last observation; of the new
-          episode's ``data``, the fields ``_carried_at_reset`` names are filled, the other
+          episode's ``data``, the fields ``carried_fields`` names are filled, the other
           derived ones keep this step's values until the next step recomputes them.
         """
         action = jnp.asarray(action, state.obs.dtype)
@@ -316,23 +286,26 @@ class Env:
                 f"{self.name}: step takes one env's action of shape ({self.action_size},), got "
                 f"{action.shape}; for a batch, jax.vmap(env.step) over states and actions"
             )
-        model = self._model(state.params)
+        step = wrappers.guard_divergence(self.task_step, self.terminate_when_unhealthy)
+        step = wrappers.count_episodes(step, self.episode_length)
+        return wrappers.auto_reset(step, self.reset, self.carried_fields)(state, action)
+
+    def task_step(self, state: State, action: jax.Array) -> State:
+        """The physics and the task alone: ``frame_skip`` physics steps of the episode's model,
+        then the task's reward, termination rule, metrics and observation. ``step`` wraps it
+        (``envs.wrappers``); the episode's count, ``truncated``, ``rng`` and ``params`` come
+        through unchanged, and ``final_obs`` is the new observation."""
+        model = randomization.apply(self.model, state.params)
         before, after, overflow = self._physics(model, state, action)
         task_key = jax.random.fold_in(state.rng, 2)
         terms, terminated, extra, task = self._reward_task(model, before, after, action, state.task, task_key)
-        reward = sum(terms.values())
         obs = self._observe_task(model, after, task)
-        obs, reward, terminated, diverged = episode.guard_divergence(
-            after, obs, reward, terminated, self.terminate_when_unhealthy
-        )
-        length, ret, truncated = episode.count(state, reward, self.episode_length)
-        budgeted = physics.contact_budgeted(self.model)  # never silent: what the budgets dropped
-        metrics = episode.metrics(terms, extra, diverged, overflow if budgeted else None, obs.dtype)
-        stepped = State(data=after, obs=obs, reward=reward, terminated=terminated, truncated=truncated,
-                        final_obs=obs, metrics=metrics, episode_return=ret, episode_length=length,
-                        params=state.params, rng=state.rng, task=task)  # fmt: skip
-        fresh, done = self.reset(state.rng), stepped.done
-        return episode.auto_reset(done, stepped, fresh, self._carried_at_reset())
+        metrics = {f"reward_{k}": v for k, v in terms.items()} | extra
+        if physics.contact_budgeted(self.model):  # never silent: what the budgets dropped
+            metrics["contact_overflow"] = jnp.max(overflow)
+        metrics = {k: jnp.asarray(v, obs.dtype) for k, v in metrics.items()}
+        return state.replace(data=after, obs=obs, reward=sum(terms.values()), terminated=terminated,
+                             final_obs=obs, metrics=metrics, task=task)  # fmt: skip
 
     def _physics(self, model: Model, state: State, action: jax.Array) -> tuple[Data, Data, jax.Array]:
         """``frame_skip`` physics steps under the action's controls: the data they start from
@@ -349,30 +322,16 @@ class Env:
         after, overflow = jax.lax.scan(substep, before, None, length=self.frame_skip)
         return before, after, overflow
 
-    def _carried_at_reset(self) -> tuple[str, ...]:
+    @property
+    def carried_fields(self) -> tuple[str, ...]:
         """The ``Data`` fields an auto-reset takes from the new episode: the state, the
-        kinematics, and whatever else the next step's reward reads of the state it starts from
-        (found by tracing ``_reward_task``). The other derived fields keep the finished
-        episode's values until the next step recomputes them (a step recomputes every derived
-        field from the state before it reads one), so XLA leaves out the reset's computation of
-        them, e.g. the mass matrix, which the step's own compile and run then skip."""
-        if getattr(self, "_carried", None) is None:
-            model, key = self.model, jax.random.PRNGKey(0)
-
-            def start():
-                data = self._reset_data(key, model)
-                return data, self._sample_task(key, model, data)
-
-            data, task = jax.eval_shape(start)
-            action = jnp.zeros(model.nu, data.qpos.dtype)
-
-            def reward(before):  # what it reads of ``after`` is computed by the step itself
-                after, zero_task = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), (data, task))
-                return self._reward_task(model, before, after, action, zero_task, key)
-
-            always = episode.STATE_FIELDS + episode.KINEMATICS
-            self._carried = always + tuple(f for f in episode.fields_read(reward, data) if f not in always)
-        return self._carried
+        kinematics, and the task's ``carried_at_reset``. The other derived fields keep the
+        finished episode's values until the next step recomputes them (a step recomputes every
+        derived field from the state before it reads one), so XLA leaves out the reset's
+        computation of them, e.g. the mass matrix, which the step's own compile and run then
+        skip."""
+        always = episode.STATE_FIELDS + episode.KINEMATICS
+        return always + tuple(f for f in self.carried_at_reset if f not in always)
 
     def metric_names(self) -> list[str]:
         """Names of ``State.metrics`` (fixed per env, so batches have a static structure)."""
@@ -400,42 +359,6 @@ class Env:
         qpos, qvel = self._reset_qpos_qvel(key, model)
         data = physics.make_data(model, qpos=qpos, qvel=qvel)
         return physics.forward_forces(model, data)
-
-    def _sample_params(self, key: jax.Array) -> dict:
-        r, m = self.randomization, self.model
-        params = {}
-        if not r.enabled:
-            return params
-        k1, k2, k3 = jax.random.split(key, 3)  # the gain's key folds in: earlier draws unchanged
-        dtype = m.body_mass.dtype
-        if r.mass:
-            params["mass_scale"] = jax.random.uniform(k1, (m.nbody,), dtype, 1 - r.mass, 1 + r.mass)
-        if r.friction:
-            params["friction_scale"] = jax.random.uniform(k2, (), dtype, 1 - r.friction, 1 + r.friction)
-        if r.damping:
-            params["damping_scale"] = jax.random.uniform(k3, (m.nv,), dtype, 1 - r.damping, 1 + r.damping)
-        if r.gain:
-            k4 = jax.random.fold_in(key, 4)
-            params["gain_scale"] = jax.random.uniform(k4, (m.nu,), dtype, 1 - r.gain, 1 + r.gain)
-        return params
-
-    def _model(self, params: dict) -> Model:
-        """The model with this env's randomised parameters applied."""
-        m = self.model
-        if "mass_scale" in params:
-            s = params["mass_scale"]
-            m = m.replace(body_mass=m.body_mass * s, body_inertia=m.body_inertia * s[:, None])
-        if "friction_scale" in params:
-            m = m.replace(pair_friction=m.pair_friction * params["friction_scale"])
-        if "damping_scale" in params:
-            m = m.replace(dof_damping=m.dof_damping * params["damping_scale"])
-        if "gain_scale" in params:  # gain and position feedback (biasprm[1] = -kp) together
-            s = params["gain_scale"]
-            m = m.replace(
-                actuator_gainprm=m.actuator_gainprm.at[:, 0].multiply(s),
-                actuator_biasprm=m.actuator_biasprm.at[:, 1].multiply(s),
-            )
-        return m
 
     def uniform(self, key: jax.Array, shape, scale: float) -> jax.Array:
         """Uniform noise in [-scale, scale] in the model's dtype."""

@@ -8,6 +8,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from fastrl import envs
+from fastrl.envs import wrappers
 
 
 @pytest.fixture(scope="module")
@@ -55,10 +56,10 @@ def test_auto_reset_starts_fresh_random_episodes(pendulum):
 
 @pytest.mark.parametrize("name", ["ant", "humanoid"])
 def test_a_step_reads_its_data_only_through_what_an_auto_reset_carries(name):
-    """An auto-reset takes only some Data fields from the new episode (``Env._carried_at_reset``);
+    """An auto-reset takes only some Data fields from the new episode (``Env.carried_fields``);
     a step from a state whose other fields are NaN gives the same result to the bit."""
     env = envs.make(name, episode_length=2)
-    carried = env._carried_at_reset()
+    carried = env.carried_fields
     assert {"qpos", "qvel", "xpos"} <= set(carried) and "qM" not in carried
     state = env.reset(jax.random.PRNGKey(3))
     stale = {f: jnp.full_like(getattr(state.data, f), jnp.nan) for f in state.data.__dataclass_fields__
@@ -72,6 +73,42 @@ def test_a_step_reads_its_data_only_through_what_an_auto_reset_carries(name):
             np.testing.assert_array_equal(x, y)
         state = a
     assert bool(state.done)
+
+
+def _fields_read(fn, data) -> set[str]:
+    """The fields of ``data`` (abstract ``Data``) that ``fn(data)`` reads, from its traced program:
+    a field counts as read if any operation or output takes it."""
+    paths, treedef = jax.tree_util.tree_flatten_with_path(data)
+    jaxpr = jax.make_jaxpr(lambda *leaves: fn(jax.tree.unflatten(treedef, leaves)))(
+        *(x for _, x in paths)
+    ).jaxpr
+    used = {id(v) for eqn in jaxpr.eqns for v in eqn.invars} | {id(v) for v in jaxpr.outvars}
+    return {path[0].name for (path, _), var in zip(paths, jaxpr.invars, strict=True) if id(var) in used}
+
+
+@pytest.mark.parametrize("name", envs.names())
+def test_what_a_reward_reads_of_the_step_start_is_carried_at_reset(name):
+    """Each task declares the ``Data`` fields its reward reads of the state a step starts from
+    (``Env.carried_at_reset``, beyond the state and kinematics an auto-reset always carries); its
+    traced reward reads no other. A field missed here would reach the next episode's first
+    reward stale from the last one."""
+    env = envs.make(name)
+    model, key = env.model, jax.random.PRNGKey(0)
+
+    def start():
+        data = env._reset_data(key, model)
+        return data, env._sample_task(key, model, data)
+
+    data, task = jax.eval_shape(start)
+    action = jnp.zeros(model.nu, data.qpos.dtype)
+
+    def reward(before):  # what it reads of ``after``, the step computes itself
+        after, zero_task = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), (data, task))
+        return env._reward_task(model, before, after, action, zero_task, key)
+
+    assert _fields_read(lambda d: jnp.sum(d.qM) + jnp.sum(d.cvel), data) == {"qM", "cvel"}  # it sees reads
+    undeclared = _fields_read(reward, data) - set(env.carried_fields)
+    assert not undeclared, f"{name}'s reward reads {sorted(undeclared)} of the step's start"
 
 
 def test_reset_noise_has_the_configured_distribution():
@@ -209,3 +246,33 @@ def test_vector_env_splits_over_two_cpu_devices_with_the_same_results():
         np.testing.assert_allclose(np.array(a[0]), np.array(b[0]), rtol=1e-6, atol=1e-7)
         np.testing.assert_allclose(a[1], b[1], rtol=1e-6)
         assert a[2] == b[2]
+
+
+def test_the_step_is_the_task_step_under_its_wrappers_and_they_compose():
+    """``env.step`` equals ``task_step`` under the guard, the episode count and the auto-reset;
+    a loop that leaves the count out has no time limit, and one without the guard lets a
+    NaN reach the observation."""
+    env = envs.make("inverted_pendulum", episode_length=3)
+    state = env.reset(jax.random.PRNGKey(0))
+    composed = wrappers.auto_reset(
+        wrappers.count_episodes(wrappers.guard_divergence(env.task_step, True), 3),
+        env.reset,
+        env.carried_fields,
+    )
+    no_limit = jax.jit(wrappers.auto_reset(env.task_step, env.reset, env.carried_fields))
+    a, b, c = state, state, state
+    for _ in range(4):
+        a, b, c = (
+            env.step(a, jnp.ones(1) * 0.1),
+            composed(b, jnp.ones(1) * 0.1),
+            no_limit(c, jnp.ones(1) * 0.1),
+        )
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+            np.testing.assert_array_equal(x, y)
+        assert not bool(c.truncated)
+    assert int(a.episode_length) == 1  # the third step truncated, the fourth began a new episode
+    nan = jnp.full(1, jnp.nan)
+    assert bool(jnp.isnan(no_limit(state, nan).final_obs).any())
+    guarded = env.step(state, nan)
+    assert bool(guarded.terminated) and not bool(jnp.isnan(guarded.final_obs).any())
+    assert float(guarded.metrics["diverged"]) == 1.0
