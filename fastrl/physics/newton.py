@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import smooth
+from fastrl.physics import factor
 from fastrl.physics.math import matvec
 from fastrl.physics.solver import Rows, finish, gradient_hessian, hessian_structure, make_rows, primal_cost
 from fastrl.physics.types import Data, Model
@@ -377,8 +377,8 @@ def _solve_jvp(primals, tangents):
 
     def newton_step(m, d):
         rows = make_rows(m, d)
-        grad, hess = gradient_hessian(rows, d, a, rows.jar(a), smooth.dense_solver(structure) is not None)
-        return finish(rows, d, a - smooth.solve_structured(structure, hess, grad))
+        grad, hess = gradient_hessian(rows, d, a, rows.jar(a), factor.dense_solver(structure) is not None)
+        return finish(rows, d, a - factor.solve_structured(structure, hess, grad))
 
     _, tangent = jax.jvp(newton_step, primals, tangents)
     return out, tangent
@@ -395,13 +395,13 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
     a = jnp.where(primal_cost(rows, d, warm) > primal_cost(rows, d, d.qacc_smooth), d.qacc_smooth, warm)
     a = jnp.where(constrained, a, d.qacc_smooth)
     structure = hessian_structure(m)
-    dense = smooth.dense_solver(structure) is not None
+    dense = factor.dense_solver(structure) is not None
     res = rows.jar(a)
     grad, hess = gradient_hessian(rows, d, a, res, dense)
     real = isl.scale > 0
     gradient_ok = isl.scale * isl.norm(grad) < tol
-    gap = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * smooth.solve(m, d.qM, grad))) < tol
-    mgrad = smooth.solve_structured(structure, hess, grad)
+    gap = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * factor.solve(m, d.qM, grad))) < tol
+    mgrad = factor.solve_structured(structure, hess, grad)
     decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
     stopped = ~real | (gap & gradient_ok) | (gradient_ok & (decrement < tol))
 
@@ -416,7 +416,7 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
         js = rows.j(search)
         res = tuple(r + (o @ alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
         grad, hess = gradient_hessian(rows, d, a, res, dense)
-        mgrad = smooth.solve_structured(structure, hess, grad)
+        mgrad = factor.solve_structured(structure, hess, grad)
         improvement = isl.scale * improvement
         gradient = isl.scale * isl.norm(grad)
         decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
