@@ -295,7 +295,7 @@ def _face(t, pos, mat, size, mesh, tables, face, width):
 def faces_pair(type1: int, type2: int):
     """Collision of a box or mesh with a mesh (box-box has its own primitive): EPA's contact and
     MuJoCo's face-clipping multi-contact (see module doc), ``CONTACTS`` candidates. For pairs
-    whose margin is zero (MuJoCo searches others by perturbation: ``collision_gjk.convex_pair``).
+    whose margin is zero (MuJoCo searches others by perturbation: ``collision_ccd.convex_pair``).
 
     Signature as the driver's shaped functions: poses and sizes, each geom's hull (its vertices
     and where its rows start in ``Model.mesh_polymap`` and ``mesh_polyvert``), the margin and the

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl import physics
-from fastrl.physics import collision_gjk as gjk
+from fastrl.physics import collision_ccd as ccd
 from fastrl.physics import factor
 
 
@@ -119,9 +119,9 @@ def test_multi_contact_search_compiles_gjk_epa_once():
     hull = jnp.asarray(np.random.default_rng(0).normal(size=(n, verts, 3)))
     poses = (jnp.zeros((n, 3)), eye, jnp.ones((n, 3)), jnp.ones((n, 3)), eye, jnp.ones((n, 3)))
     box, mesh = int(physics.types.GeomType.BOX), int(physics.types.GeomType.MESH)
-    one = _optimised_instructions(jax.vmap(gjk.single_contact(box, mesh)), *poses, jnp.zeros((n, 1, 3)), hull)
+    one = _optimised_instructions(jax.vmap(ccd.single_contact(box, mesh)), *poses, jnp.zeros((n, 1, 3)), hull)
     search = _optimised_instructions(
-        jax.vmap(gjk.convex_pair(box, mesh)),
+        jax.vmap(ccd.convex_pair(box, mesh)),
         *poses,
         jnp.zeros((n, 1, 3)),
         hull,
