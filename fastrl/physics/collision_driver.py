@@ -1,8 +1,8 @@
 """Narrow phase over the static pair table: one vmapped primitive per geom-type pair.
 
-Which geom pairs can touch is decided once on the host (``io.candidate_geom_pairs``); the traced
-program only evaluates those pairs, each type pair by its own primitive, and always returns the
-same number of candidate contacts. A scene with no pairs traces no collision code at all.
+Which geom pairs can touch is decided once on the host (``io_contacts.candidate_geom_pairs``); the
+traced program only evaluates those pairs, each type pair by its own primitive, and always returns
+the same number of candidate contacts. A scene with no pairs traces no collision code at all.
 """
 
 from __future__ import annotations
