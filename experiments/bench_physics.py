@@ -25,7 +25,7 @@ import numpy as np
 import fastrl
 from experiments import results
 from fastrl import physics
-from fastrl.physics import actuation, passive, smooth
+from fastrl.physics import actuation, factor, passive, smooth
 
 MODEL = results.ROOT / "tests" / "assets" / "ant_air.xml"
 
@@ -113,7 +113,7 @@ def profile_stages(m: physics.Model, batch: int, repeats: int) -> dict[str, floa
         "com_vel": lambda d: smooth.com_vel(m, d),
         "rne (bias forces)": lambda d: smooth.rne(m, d),
         "passive + actuation": lambda d: actuation.actuation(m, passive.passive(m, d)),
-        "factor + solve M": lambda d: smooth.solve_m(m, smooth.factor_m(m, d.qM), d.qfrc_smooth),
+        "factor + solve M": lambda d: factor.solve_m(m, factor.factor_m(m, d.qM), d.qfrc_smooth),
         "whole step": lambda d: physics.step(m, d),
     }
     out = {name: 1e6 * _time(jax.jit(jax.vmap(f)), data, repeats=repeats) for name, f in stages.items()}

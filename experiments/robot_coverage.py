@@ -65,7 +65,7 @@ import fastrl
 from experiments import results
 from fastrl import physics
 from fastrl.envs.robots import assets
-from fastrl.physics import collision_driver
+from fastrl.physics import collision_driver, io_checks, io_contacts
 from fastrl.physics import io as physics_io
 
 TRACK_TOL = 1e-4
@@ -157,9 +157,9 @@ def _reasons(err: physics.UnsupportedFeatureError) -> list[str]:
 def _hidden_reasons(mj: mujoco.MjModel, reasons: list[str]) -> list[str]:
     """What a refusal message cannot list: all missing collision pairs, a late-checked integrator."""
     out = []
-    if physics_io.contacts_enabled(mj):
+    if io_checks.contacts_enabled(mj):
         named = {_feature(r) for r in reasons}
-        for g1, g2 in physics_io.candidate_geom_pairs(mj):
+        for g1, g2 in io_contacts.candidate_geom_pairs(mj):
             key = (int(mj.geom_type[g1]), int(mj.geom_type[g2]))
             if key not in collision_driver.SUPPORTED:
                 t1, t2 = (mujoco.mjtGeom(t).name[7:].lower() for t in key)

@@ -20,15 +20,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "fastrl"
 # A function's length in lines, decorators aside (nested functions count in their parent too).
 MAX_LINES = 60
-# The engine's limit for now: its long collision and solver functions (GJK/EPA, the mesh manifold,
-# the Newton solver's line search) and the MJCF loader are split once the contact-cost work has
-# stopped changing them; then fastrl/physics/ comes under MAX_LINES too.
-PHYSICS_MAX_LINES = 80
 # A module's length in lines.
 MAX_MODULE_LINES = 500
-# Modules over MAX_MODULE_LINES while they wait to be split, all in the engine (with the long
-# functions above). Nothing else may join; one that comes under the limit leaves the list.
-LONG_MODULES_FOR_NOW = {"physics/io.py", "physics/smooth.py", "physics/collision_gjk.py"}
 # PEP 562 lazy attributes, the only function-local imports of fastrl modules, on purpose:
 # ``fastrl.load_policy`` (importing fastrl.physics must not pull in the learners and orbax) and
 # the Gymnasium adapter of fastrl.envs (importing gymnasium writes into os.environ).
@@ -61,37 +54,26 @@ def _imported(node: ast.Import | ast.ImportFrom, modules: dict[str, Path]) -> se
     return found
 
 
-def _line_limit(rel: str) -> int:
-    """The most lines a function of the module ``rel`` (relative to fastrl/) may have."""
-    return PHYSICS_MAX_LINES if rel.startswith("physics/") else MAX_LINES
-
-
-def test_no_function_in_fastrl_is_over_its_limit():
-    """Every function outside fastrl/physics/ has at most MAX_LINES lines; the engine's, at most
-    PHYSICS_MAX_LINES."""
+def test_no_function_in_fastrl_is_over_60_lines():
+    """Every function of fastrl/, the engine's included, has at most MAX_LINES lines."""
     long = []
     for path in sorted(PACKAGE.rglob("*.py")):
         rel = path.relative_to(PACKAGE).as_posix()
         for fn in _functions(ast.parse(path.read_text())):
             lines = fn.end_lineno - fn.lineno + 1
-            if lines > _line_limit(rel):
-                long.append(f"{rel}:{fn.lineno} {fn.name} ({lines} lines, limit {_line_limit(rel)})")
-    assert not long, "functions over their limit:\n  " + "\n  ".join(long)
+            if lines > MAX_LINES:
+                long.append(f"{rel}:{fn.lineno} {fn.name} ({lines} lines)")
+    assert not long, f"functions over {MAX_LINES} lines:\n  " + "\n  ".join(long)
 
 
 def test_no_module_in_fastrl_is_over_500_lines():
-    """Every module has at most MAX_MODULE_LINES lines, but the engine's named in
-    LONG_MODULES_FOR_NOW, and each of those is still over it (a module split below the limit
-    leaves the list)."""
-    lengths = {
-        path.relative_to(PACKAGE).as_posix(): len(path.read_text().splitlines())
-        for path in sorted(PACKAGE.rglob("*.py"))
-    }
-    long = {rel: n for rel, n in lengths.items() if n > MAX_MODULE_LINES}
-    over = [f"{rel} ({n} lines)" for rel, n in long.items() if rel not in LONG_MODULES_FOR_NOW]
+    """Every module of fastrl/, the engine's included, has at most MAX_MODULE_LINES lines."""
+    over = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        n = len(path.read_text().splitlines())
+        if n > MAX_MODULE_LINES:
+            over.append(f"{path.relative_to(PACKAGE).as_posix()} ({n} lines)")
     assert not over, f"modules over {MAX_MODULE_LINES} lines:\n  " + "\n  ".join(over)
-    stale = sorted(LONG_MODULES_FOR_NOW - set(long))
-    assert not stale, f"now within {MAX_MODULE_LINES} lines (remove from LONG_MODULES_FOR_NOW): {stale}"
 
 
 def test_no_function_local_imports_of_fastrl_modules():

@@ -11,7 +11,8 @@ from fastrl.physics.forward import (
     rk4,
     step,
 )
-from fastrl.physics.io import UnsupportedFeatureError, load_mjcf, make_data, model_from_mujoco
+from fastrl.physics.io import load_mjcf, make_data, model_from_mujoco
+from fastrl.physics.io_checks import UnsupportedFeatureError
 from fastrl.physics.sensor import cfrc_ext, contact_force
 from fastrl.physics.types import Data, Integrator, JointType, Model
 

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fastrl.physics import collision_ccd as ccd
 from fastrl.physics import collision_gjk as gjk
 from fastrl.physics import collision_manifold as manifold
 from fastrl.physics.collision_primitive import _FAR, _normalize
@@ -274,7 +275,7 @@ def hfield_convex(gtype: int):
     """Height field against a capsule, cylinder, ellipsoid or mesh: each prism of the window as a
     six-vertex hull against the geom by GJK/EPA (``collision_gjk``), one contact per prism, as
     MuJoCo's ``mjc_ConvexHField`` runs its GJK/EPA on each prism."""
-    contact = gjk.single_contact(GeomType.MESH, gtype)
+    contact = ccd.single_contact(GeomType.MESH, gtype)
 
     def collide(
         h_pos,

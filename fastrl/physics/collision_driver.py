@@ -1,8 +1,8 @@
 """Narrow phase over the static pair table: one vmapped primitive per geom-type pair.
 
-Which geom pairs can touch is decided once on the host (``io.candidate_geom_pairs``); the traced
-program only evaluates those pairs, each type pair by its own primitive, and always returns the
-same number of candidate contacts. A scene with no pairs traces no collision code at all.
+Which geom pairs can touch is decided once on the host (``io_contacts.candidate_geom_pairs``); the
+traced program only evaluates those pairs, each type pair by its own primitive, and always returns
+the same number of candidate contacts. A scene with no pairs traces no collision code at all.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl.physics import collision_box as box
+from fastrl.physics import collision_ccd as ccd
 from fastrl.physics import collision_convex as convex
-from fastrl.physics import collision_gjk as gjk
 from fastrl.physics import collision_manifold as manifold
 from fastrl.physics import collision_primitive as prim
 from fastrl.physics.math import cross, dot
@@ -67,7 +67,7 @@ GJK_PAIRS = {
     for t2 in _CONVEX
     if t1 <= t2 and (t1, t2) not in PRIMITIVES and (t1, t2) not in SHAPED
 }
-SHAPED.update({key: (gjk.convex_pair(*key), gjk.contacts_per_pair(*key)) for key in sorted(GJK_PAIRS)})
+SHAPED.update({key: (ccd.convex_pair(*key), ccd.contacts_per_pair(*key)) for key in sorted(GJK_PAIRS)})
 # Meshes against meshes and boxes with no margin (``Model.pair_faceclip``): MuJoCo's face-clipping
 # multi-contact instead of the perturbation search; keyed by the type pair and ``FACES``.
 FACES = "faces"
@@ -80,7 +80,7 @@ SUPPORTED = {**PRIMITIVES, **SHAPED}
 @dataclasses.dataclass(frozen=True)
 class Convex:
     """The key of a group of GJK/EPA pairs that may mix type pairs: the geom types on each side.
-    Every type pair it holds has the same ``collision_gjk.program`` (EPA's iterations, candidate
+    Every type pair it holds has the same ``collision_ccd.program`` (EPA's iterations, candidate
     contacts), and each pair's own types are data (``codes``), so the group compiles GJK/EPA once
     however many type pairs it holds."""
 
@@ -93,7 +93,7 @@ MESH_GROUPS = 3  # at most this many hull-size groups per type pair (each compil
 
 
 def _plain_gjk(key) -> bool:
-    """Whether a type pair (or group key) goes through ``collision_gjk.convex_pair``."""
+    """Whether a type pair (or group key) goes through ``collision_ccd.convex_pair``."""
     return isinstance(key, Convex) or (key in GJK_PAIRS and key not in FACE_CLIPPED)
 
 
@@ -132,18 +132,18 @@ def _hull_buckets(m: Model, idx: np.ndarray) -> np.ndarray:
 
 
 def _convex_groups(m: Model, key: tuple[int, int], seen: set) -> list[tuple[Convex, np.ndarray]]:
-    """The GJK/EPA groups of ``key``'s program (``collision_gjk.program``): the pairs of every
+    """The GJK/EPA groups of ``key``'s program (``collision_ccd.program``): the pairs of every
     type pair with that program, split by hull size (``_hull_buckets``), each group keyed by the
     types it holds, so several type pairs compile one GJK/EPA. Empty when the program's groups
     were made already (``seen``). Under MJX's ``max_geom_pairs``, which caps each type pair and
     condim, type pairs are not mixed."""
-    program = key if capped(m, key) else gjk.program(*key)
+    program = key if capped(m, key) else ccd.program(*key)
     if program in seen:
         return []
     seen.add(program)
     t1, t2 = m.geom_type[m.pair_geom1], m.geom_type[m.pair_geom2]
     plain = ~m.pair_faceclip.astype(bool)
-    ours = [k for k in SUPPORTED if _plain_gjk(k) and (k if capped(m, k) else gjk.program(*k)) == program]
+    ours = [k for k in SUPPORTED if _plain_gjk(k) and (k if capped(m, k) else ccd.program(*k)) == program]
     idx = np.flatnonzero(plain & np.any([(t1 == k[0]) & (t2 == k[1]) for k in ours], axis=0))
     if not idx.size:
         return []
@@ -153,7 +153,7 @@ def _convex_groups(m: Model, key: tuple[int, int], seen: set) -> list[tuple[Conv
     for b in np.unique(bucket):
         sub = idx[bucket == b]
         types = tuple(tuple(int(t) for t in np.unique(side[sub])) for side in (t1, t2))
-        groups.append((Convex(*types, gjk.program(int(t1[sub[0]]), int(t2[sub[0]]))), sub))
+        groups.append((Convex(*types, ccd.program(int(t1[sub[0]]), int(t2[sub[0]]))), sub))
     return groups
 
 
@@ -290,7 +290,7 @@ def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes:
     margin = args[-2]  # the shaped GJK arguments end with the margin and the smaller rbound
     verts = [a[0] if isinstance(a, tuple) else a for a in args[6:8]]  # face-clipped: hull tuples
     codes = args[8:9] if isinstance(key, Convex) else ()  # each pair's own types
-    sep = jax.vmap(gjk.separation(*key_types(key)))(*args[:6], *verts, *codes)
+    sep = jax.vmap(ccd.separation(*key_types(key)))(*args[:6], *verts, *codes)
     near = (overlap >= 0) & (sep < margin)
     if k2 < k1:
         near, closest, args = _keep(k2, jnp.where(near, -sep, -jnp.inf), args, axes)
@@ -459,7 +459,7 @@ def group_contacts(m: Model, d: Data, key, idx: np.ndarray) -> tuple[jax.Array, 
     first four per pair and candidate, ``pair`` the pair each candidate holds, ``dropped`` the
     pairs whose bounding spheres overlap that the group's budget left out."""
     convex = isinstance(key, Convex)
-    fn = gjk.convex_pair(key.types1, key.types2, m.multiccd, key.program) if convex else SUPPORTED[key][0]
+    fn = ccd.convex_pair(key.types1, key.types2, m.multiccd, key.program) if convex else SUPPORTED[key][0]
     g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
     poses = (d.geom_xpos[g1], d.geom_xmat[g1], m.geom_size[g1],
              d.geom_xpos[g2], d.geom_xmat[g2], m.geom_size[g2])  # fmt: skip

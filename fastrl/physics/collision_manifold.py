@@ -295,7 +295,7 @@ def _face(t, pos, mat, size, mesh, tables, face, width):
 def faces_pair(type1: int, type2: int):
     """Collision of a box or mesh with a mesh (box-box has its own primitive): EPA's contact and
     MuJoCo's face-clipping multi-contact (see module doc), ``CONTACTS`` candidates. For pairs
-    whose margin is zero (MuJoCo searches others by perturbation: ``collision_gjk.convex_pair``).
+    whose margin is zero (MuJoCo searches others by perturbation: ``collision_ccd.convex_pair``).
 
     Signature as the driver's shaped functions: poses and sizes, each geom's hull (its vertices
     and where its rows start in ``Model.mesh_polymap`` and ``mesh_polyvert``), the margin and the
@@ -310,62 +310,70 @@ def faces_pair(type1: int, type2: int):
 
     @gjk.stops_when_done
     def clipped(loop):
-        return lambda *args: clip(*args, loop=loop)
-
-    def clip(pos1, mat1, size1, pos2, mat2, size2, mesh1, mesh2, tables, loop):
-        support1 = lambda d: gjk.support_vertex(type1, pos1, mat1, size1, mesh1[0], d)  # noqa: E731
-        support2 = lambda d: gjk.support_vertex(type2, pos2, mat2, size2, mesh2[0], d)  # noqa: E731
-        dist, w1, w2, simplex, _ = gjk.gjk(support1, support2, pos1 - pos2, gjk.GJK_ITERATIONS, loop)
-        apart = dist > 0
-        depth, n_deep, d1, d2, (va, vb, ia, ib) = gjk.epa(
-            support1, support2, simplex, gjk.EPA_ITERATIONS, apart, loop
-        )
-        gap = w2 - w1
-        normal = jnp.where(apart, gap / jnp.where(apart, gjk.nonzero_norm(gap, 0.0)[0], 1.0), n_deep)
-        x1, x2 = jnp.where(apart, w1, d1), jnp.where(apart, w2, d2)
-        single = (jnp.where(apart, dist, -depth), 0.5 * (x1 + x2), normal)
-
-        width = max(4, tables[1].shape[1])
-        dim1, ids1, pts1 = _feature(ia, va)
-        dim2, ids2, pts2 = _feature(ib, vb)
-
-        g1 = (type1, pos1, mat1, size1, mesh1, tables)
-        g2 = (type2, pos2, mat2, size2, mesh2, tables)
-        n1, f1, ok1 = _normals(*g1, dim1, ids1, x1 - x2)
-        n2, f2, ok2 = _normals(*g2, dim2, ids2, x2 - x1)
-        # faces facing each other: the first (i, j) in MuJoCo's order
-        facing = (n1 @ n2.T < -FACE_TOL) & ok1[:, None] & ok2[None, :]
-        ff, aligned = _first(facing.reshape(-1))
-        fi, fj = ff // n2.shape[0], ff % n2.shape[0]
-        # else an edge of the geom touching with fewer vertices lying in a face of the other
-        e1, end1, eok1 = _edges(*g1, dim1, ids1, pts1)
-        e2, end2, eok2 = _edges(*g2, dim2, ids2, pts2)
-        try1 = ~aligned & (dim1 < 3) & (dim1 <= dim2)
-        try2 = ~aligned & ~try1 & (dim2 < 3)
-        lie1 = (jnp.abs(n2 @ e1.T) < EDGE_TOL) & ok2[:, None] & eok1[None, :]  # (faces of 2, edges of 1)
-        lie2 = (jnp.abs(n1 @ e2.T) < EDGE_TOL) & ok1[:, None] & eok2[None, :]
-        fe1, found1 = _first(lie1.reshape(-1))
-        fe2, found2 = _first(lie2.reshape(-1))
-        edge1, edge2 = try1 & found1, try2 & found2
-        # the clipping face (a face), the clipped polygon (a face or an edge), normal, direction
-        face_a1 = _face(*g1, f1[jnp.where(edge2, fe2 // e2.shape[0], fi)], width)
-        face_a2 = _face(*g2, f2[jnp.where(edge1, fe1 // e1.shape[0], fj)], width)
-        seg1 = jnp.zeros((width, 3), pos1.dtype).at[0].set(pts1[0]).at[1].set(end1[fe1 % e1.shape[0]])
-        seg2 = jnp.zeros((width, 3), pos1.dtype).at[0].set(pts2[0]).at[1].set(end2[fe2 % e2.shape[0]])
-        na, nb = n1[jnp.where(edge2, fe2 // e2.shape[0], fi)], n2[jnp.where(edge1, fe1 // e1.shape[0], fj)]
-        face, nface = (jnp.where(edge1, a2, a1) for a1, a2 in zip(face_a1, face_a2, strict=True))
-        poly = jnp.where(edge1, seg1, jnp.where(edge2, seg2, face_a2[0]))
-        poly = jnp.concatenate([poly, jnp.zeros_like(poly)])  # clipping can add a point per edge
-        npoly = jnp.where(edge1 | edge2, 2, face_a2[1])
-        plane = jnp.where(edge1, nb, na)
-        direction = jnp.where(edge1, -nb, jnp.where(edge2, -na, nb))
-        dist, wa, wb, count = _contacts(face, nface, poly, npoly, plane, direction, edge1 | edge2)
-        xa, xb = jnp.where(edge1, wb, wa), jnp.where(edge1, wa, wb)  # geom 1's, geom 2's
-        multi = ~apart & (aligned | edge1 | edge2) & (count > 0)
-        slots = jnp.arange(CONTACTS)
-        dists = jnp.where(multi, jnp.where(slots < count, dist, _FAR), jnp.where(slots == 0, single[0], _FAR))
-        poss = jnp.where(multi, 0.5 * (xa + xb), jnp.broadcast_to(single[1], (CONTACTS, 3)))
-        normals_out = jnp.where(multi, _unit(xa - xb), jnp.broadcast_to(single[2], (CONTACTS, 3)))
-        return dists, poss, normals_out, jnp.zeros((CONTACTS, 3), pos1.dtype)
+        return lambda *args: _clipped_contacts(type1, type2, *args, loop=loop)
 
     return collide
+
+
+def _single(type1: int, type2: int, pos1, mat1, size1, pos2, mat2, size2, mesh1, mesh2, loop):
+    """GJK and EPA on one pair: whether it is apart, its single contact ``(dist, pos, normal)``,
+    the contact's points on geom 1 and on geom 2 (3,), and EPA's final face (``gjk.epa``)."""
+    support1 = lambda d: gjk.support_vertex(type1, pos1, mat1, size1, mesh1[0], d)  # noqa: E731
+    support2 = lambda d: gjk.support_vertex(type2, pos2, mat2, size2, mesh2[0], d)  # noqa: E731
+    dist, w1, w2, simplex, _ = gjk.gjk(support1, support2, pos1 - pos2, gjk.GJK_ITERATIONS, loop)
+    apart = dist > 0
+    depth, n_deep, d1, d2, face = gjk.epa(support1, support2, simplex, gjk.EPA_ITERATIONS, apart, loop)
+    gap = w2 - w1
+    normal = jnp.where(apart, gap / jnp.where(apart, gjk.nonzero_norm(gap, 0.0)[0], 1.0), n_deep)
+    x1, x2 = jnp.where(apart, w1, d1), jnp.where(apart, w2, d2)
+    return apart, (jnp.where(apart, dist, -depth), 0.5 * (x1 + x2), normal), x1, x2, face
+
+
+def _clipped_contacts(type1, type2, pos1, mat1, size1, pos2, mat2, size2, mesh1, mesh2, tables, loop):
+    """``faces_pair``'s ``CONTACTS`` candidates of one pair (its arguments, GJK's and EPA's
+    ``loop``): EPA's contact, or where the cores overlap and a face of one geom turns to a face
+    of the other, or an edge lies in one, the contacts clipped from them (see module doc)."""
+    geoms = (pos1, mat1, size1, pos2, mat2, size2, mesh1, mesh2)
+    apart, single, x1, x2, (va, vb, ia, ib) = _single(type1, type2, *geoms, loop)
+    width = max(4, tables[1].shape[1])
+    dim1, ids1, pts1 = _feature(ia, va)
+    dim2, ids2, pts2 = _feature(ib, vb)
+
+    g1 = (type1, pos1, mat1, size1, mesh1, tables)
+    g2 = (type2, pos2, mat2, size2, mesh2, tables)
+    n1, f1, ok1 = _normals(*g1, dim1, ids1, x1 - x2)
+    n2, f2, ok2 = _normals(*g2, dim2, ids2, x2 - x1)
+    # faces facing each other: the first (i, j) in MuJoCo's order
+    facing = (n1 @ n2.T < -FACE_TOL) & ok1[:, None] & ok2[None, :]
+    ff, aligned = _first(facing.reshape(-1))
+    fi, fj = ff // n2.shape[0], ff % n2.shape[0]
+    # else an edge of the geom touching with fewer vertices lying in a face of the other
+    e1, end1, eok1 = _edges(*g1, dim1, ids1, pts1)
+    e2, end2, eok2 = _edges(*g2, dim2, ids2, pts2)
+    try1 = ~aligned & (dim1 < 3) & (dim1 <= dim2)
+    try2 = ~aligned & ~try1 & (dim2 < 3)
+    lie1 = (jnp.abs(n2 @ e1.T) < EDGE_TOL) & ok2[:, None] & eok1[None, :]  # (faces of 2, edges of 1)
+    lie2 = (jnp.abs(n1 @ e2.T) < EDGE_TOL) & ok1[:, None] & eok2[None, :]
+    fe1, found1 = _first(lie1.reshape(-1))
+    fe2, found2 = _first(lie2.reshape(-1))
+    edge1, edge2 = try1 & found1, try2 & found2
+    # the clipping face (a face), the clipped polygon (a face or an edge), normal, direction
+    face_a1 = _face(*g1, f1[jnp.where(edge2, fe2 // e2.shape[0], fi)], width)
+    face_a2 = _face(*g2, f2[jnp.where(edge1, fe1 // e1.shape[0], fj)], width)
+    seg1 = jnp.zeros((width, 3), pos1.dtype).at[0].set(pts1[0]).at[1].set(end1[fe1 % e1.shape[0]])
+    seg2 = jnp.zeros((width, 3), pos1.dtype).at[0].set(pts2[0]).at[1].set(end2[fe2 % e2.shape[0]])
+    na, nb = n1[jnp.where(edge2, fe2 // e2.shape[0], fi)], n2[jnp.where(edge1, fe1 // e1.shape[0], fj)]
+    face, nface = (jnp.where(edge1, a2, a1) for a1, a2 in zip(face_a1, face_a2, strict=True))
+    poly = jnp.where(edge1, seg1, jnp.where(edge2, seg2, face_a2[0]))
+    poly = jnp.concatenate([poly, jnp.zeros_like(poly)])  # clipping can add a point per edge
+    npoly = jnp.where(edge1 | edge2, 2, face_a2[1])
+    plane = jnp.where(edge1, nb, na)
+    direction = jnp.where(edge1, -nb, jnp.where(edge2, -na, nb))
+    dist, wa, wb, count = _contacts(face, nface, poly, npoly, plane, direction, edge1 | edge2)
+    xa, xb = jnp.where(edge1, wb, wa), jnp.where(edge1, wa, wb)  # geom 1's, geom 2's
+    multi = ~apart & (aligned | edge1 | edge2) & (count > 0)
+    slots = jnp.arange(CONTACTS)
+    dists = jnp.where(multi, jnp.where(slots < count, dist, _FAR), jnp.where(slots == 0, single[0], _FAR))
+    poss = jnp.where(multi, 0.5 * (xa + xb), jnp.broadcast_to(single[1], (CONTACTS, 3)))
+    normals_out = jnp.where(multi, _unit(xa - xb), jnp.broadcast_to(single[2], (CONTACTS, 3)))
+    return dists, poss, normals_out, jnp.zeros((CONTACTS, 3), pos1.dtype)

@@ -92,7 +92,8 @@ def smooth_vel(m: Model, d: Data) -> jax.Array:
     deriv = jnp.diag(diag)
     if m.ntendon or moment_actuators(m).size:
         deriv = deriv + _coupled_vel(m, d)
-    if m.body_fluid.any():  # only where springs and dampers are not both disabled (io.fluid_enabled)
+    # fluid forces act only where springs and dampers are not both disabled (io_checks.fluid_enabled)
+    if m.body_fluid.any():
         force = lambda qvel: fluid(m, smooth.com_vel(m, d.replace(qvel=qvel)))  # noqa: E731
         deriv = deriv + jax.jacfwd(force)(d.qvel)
     return deriv

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import constraint, derivative, math, newton, noslip, smooth, solver, tendon
+from fastrl.physics import constraint, derivative, factor, math, newton, noslip, smooth, solver, tendon
 from fastrl.physics.actuation import actuation, next_activation
 from fastrl.physics.collision_driver import collision
 from fastrl.physics.passive import passive
@@ -155,7 +155,7 @@ def implicitfast(m: Model, d: Data) -> Data:
     if free.size:  # those blocks are solved apart; keep the global factor's rows plain M (as MuJoCo)
         block = free[:, :, None], free[:, None, :]
         qh = qh.at[block].set(d.qM[block])
-    qacc = derivative.free_tree_acc(m, d, deriv, qfrc, smooth.solve(m, qh, qfrc))
+    qacc = derivative.free_tree_acc(m, d, deriv, qfrc, factor.solve(m, qh, qfrc))
     qvel = d.qvel + h * qacc
     qpos = integrate_pos(m, d.qpos, qvel, h)
     return d.replace(qpos=qpos, qvel=qvel, act=_advance_act(m, d, d.act_dot), time=d.time + h)

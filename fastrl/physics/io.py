@@ -1,4 +1,7 @@
-"""Building a ``Model`` from MJCF with MuJoCo's own compiler, and a fresh ``Data``."""
+"""Building a ``Model`` from MJCF with MuJoCo's own compiler, and a fresh ``Data``.
+
+What the loader refuses is decided in ``io_checks``; the contact-pair table is built in ``io_contacts``.
+"""
 
 from __future__ import annotations
 
@@ -9,27 +12,25 @@ import mujoco
 import numpy as np
 
 from fastrl.physics import smooth, tree
-from fastrl.physics.collision_driver import FACES, GJK_PAIRS, SUPPORTED, contact_layout
-from fastrl.physics.constraint import contact_slots, default_nconmax
+from fastrl.physics.collision_driver import contact_layout
+from fastrl.physics.constraint import contact_slots
 from fastrl.physics.constraint import sizes as constraint_sizes
-from fastrl.physics.types import Data, GeomType, Integrator, JointType, Model
+from fastrl.physics.io_checks import (
+    UnsupportedFeatureError,
+    check_supported,
+    constraints_enabled,
+    contacts_enabled,
+    equalities_enabled,
+    fluid_enabled,
+    frictionloss_enabled,
+    limits_enabled,
+    tendons_act,
+)
+from fastrl.physics.io_contacts import candidate_geom_pairs, contact_fields
+from fastrl.physics.types import Data, Integrator, Model
 
 _DSBL = mujoco.mjtDisableBit
 _INTEGRATORS = {"euler": Integrator.EULER, "rk4": Integrator.RK4, "implicitfast": Integrator.IMPLICITFAST}
-# The activation dynamics fastrl simulates (actuation.py); muscles, DC motors and PID servos not.
-_DYNTYPES = tuple(
-    int(k)
-    for k in (
-        mujoco.mjtDyn.mjDYN_NONE,
-        mujoco.mjtDyn.mjDYN_INTEGRATOR,
-        mujoco.mjtDyn.mjDYN_FILTER,
-        mujoco.mjtDyn.mjDYN_FILTEREXACT,
-    )
-)
-
-
-class UnsupportedFeatureError(ValueError):
-    """The MJCF model uses something fastrl does not simulate; the message names it."""
 
 
 def _names(m: mujoco.MjModel, objtype: mujoco.mjtObj, n: int) -> tuple[str, ...]:
@@ -43,322 +44,6 @@ def _compile(path_or_xml: str | os.PathLike) -> mujoco.MjModel:
     if not os.path.exists(text):
         raise FileNotFoundError(f"MJCF file not found: {text!r}")
     return mujoco.MjModel.from_xml_path(text)
-
-
-def _nonzero(m: mujoco.MjModel, field: str) -> bool:
-    value = getattr(m, field, None)
-    return value is not None and np.size(value) > 0 and bool(np.any(np.asarray(value) != 0))
-
-
-def _first(m: mujoco.MjModel, mask: np.ndarray, objtype: mujoco.mjtObj) -> str:
-    i = int(np.flatnonzero(mask)[0])
-    return f"{mujoco.mjtObj(objtype).name[6:].lower()} {mujoco.mj_id2name(m, objtype, i) or i!r}"
-
-
-def _check_supported(m: mujoco.MjModel) -> None:
-    """Raises ``UnsupportedFeatureError`` for anything that would make a silently wrong model."""
-    obj = mujoco.mjtObj
-    flags = m.opt.disableflags
-    problems = []
-    problems.extend(_tendon_problems(m))
-    problems.extend(_equality_problems(m))
-    for count, what in [
-        (m.nflex, "flexes"),
-        (m.nplugin, "plugins"),
-    ]:
-        if count:
-            problems.append(f"{what} ({count} in the model)")
-    if contacts_enabled(m) and (_nonzero(m, "geom_adhesion") or _nonzero(m, "pair_adhesion")):
-        problems.append("contact adhesion (geom or pair adhesion)")
-    condims = np.concatenate([m.geom_condim, m.pair_dim])
-    if contacts_enabled(m) and not np.isin(condims, (1, 3, 4, 6)).all():
-        problems.append("contact condim other than 1, 3, 4 or 6")
-    ellipsoid = (m.geom_fluid[:, 0] > 0) & (m.body_mass[m.geom_bodyid] >= mujoco.mjMINVAL)
-    if fluid_enabled(m) and ellipsoid.any():
-        where = _first(m, ellipsoid, obj.mjOBJ_GEOM)
-        problems.append(f"the ellipsoid fluid model ({where} has fluidshape='ellipsoid')")
-    for field in ("dof_dampingpoly", "jnt_stiffnesspoly", "jnt_springyield"):
-        if _nonzero(m, field):
-            problems.append(f"nonlinear joint passive forces ({field})")
-    stiff_3d = (m.jnt_stiffness != 0) & (m.jnt_type <= JointType.BALL)
-    if stiff_3d.any():
-        problems.append(f"stiffness on a free/ball joint ({_first(m, stiff_3d, obj.mjOBJ_JOINT)})")
-    for field in ("actuator_damping", "actuator_armature", "actuator_delay", "actuator_dampingpoly"):
-        if _nonzero(m, field):
-            problems.append(f"actuator {field[9:]}")
-    for i in range(m.nu):
-        name = mujoco.mj_id2name(m, obj.mjOBJ_ACTUATOR, i) or str(i)
-        trn, jid = m.actuator_trntype[i], m.actuator_trnid[i, 0]
-        joint = trn == int(mujoco.mjtTrn.mjTRN_JOINT)
-        site = trn == int(mujoco.mjtTrn.mjTRN_SITE)
-        if not joint and not site and trn != int(mujoco.mjtTrn.mjTRN_TENDON):
-            problems.append(f"actuator {name!r}: transmission {mujoco.mjtTrn(trn).name}")
-        elif site and m.actuator_trnid[i, 1] >= 0:
-            problems.append(f"actuator {name!r}: transmission mjTRN_SITE with a refsite")
-        elif joint and m.jnt_type[jid] not in (JointType.HINGE, JointType.SLIDE):
-            problems.append(f"actuator {name!r}: drives a free/ball joint")
-        if m.actuator_dyntype[i] not in _DYNTYPES:
-            dyn = mujoco.mjtDyn(m.actuator_dyntype[i]).name
-            problems.append(
-                f"actuator {name!r}: activation dynamics {dyn} (fastrl simulates integrator, "
-                "filter and filterexact)"
-            )
-        elif m.actuator_actnum[i] != (m.actuator_dyntype[i] != int(mujoco.mjtDyn.mjDYN_NONE)):
-            problems.append(f"actuator {name!r}: {m.actuator_actnum[i]} activation variables (actdim)")
-        if m.actuator_gaintype[i] > int(mujoco.mjtGain.mjGAIN_AFFINE):
-            problems.append(f"actuator {name!r}: gain {mujoco.mjtGain(m.actuator_gaintype[i]).name}")
-        if m.actuator_biastype[i] > int(mujoco.mjtBias.mjBIAS_AFFINE):
-            problems.append(f"actuator {name!r}: bias {mujoco.mjtBias(m.actuator_biastype[i]).name}")
-    limited = m.jnt_limited.astype(bool) & (m.jnt_type <= JointType.BALL)
-    if limited.any() and not flags & (_DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT):
-        problems.append(f"limits on a free/ball joint ({_first(m, limited, obj.mjOBJ_JOINT)})")
-    narrow = m.jnt_limited.astype(bool) & (m.jnt_range[:, 1] - m.jnt_range[:, 0] < 2 * m.jnt_margin)
-    if narrow.any() and not flags & (_DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT):
-        where = _first(m, narrow, obj.mjOBJ_JOINT)
-        problems.append(f"a joint range narrower than twice its margin ({where}: both limits active)")
-    if contacts_enabled(m):
-        for g1, g2 in candidate_geom_pairs(m):
-            key = (int(m.geom_type[g1]), int(m.geom_type[g2]))
-            if key not in SUPPORTED:
-                n1 = mujoco.mj_id2name(m, obj.mjOBJ_GEOM, g1) or g1
-                n2 = mujoco.mj_id2name(m, obj.mjOBJ_GEOM, g2) or g2
-                t1, t2 = (mujoco.mjtGeom(t).name[7:].lower() for t in key)
-                problems.append(f"collision {t1}-{t2} (geoms {n1!r}, {n2!r}) is not implemented")
-                break
-    if problems:
-        raise UnsupportedFeatureError("fastrl cannot simulate this model yet: " + "; ".join(problems))
-
-
-def _tendon_roles(m: mujoco.MjModel) -> dict[str, np.ndarray]:
-    """(ntendon,) bool for each way a tendon can act on the dynamics (disabled ones left out)."""
-    flags = m.opt.disableflags
-    spring, damper = not flags & _DSBL.mjDSBL_SPRING, not flags & _DSBL.mjDSBL_DAMPER
-    actuated = np.zeros(m.ntendon, bool)
-    by_tendon = m.actuator_trntype == int(mujoco.mjtTrn.mjTRN_TENDON)
-    actuated[m.actuator_trnid[by_tendon, 0]] = True
-    coupled = np.zeros(m.ntendon, bool)
-    if equalities_enabled(m):
-        by_eq = m.eq_type == int(mujoco.mjtEq.mjEQ_TENDON)
-        for ids in (m.eq_obj1id[by_eq], m.eq_obj2id[by_eq]):
-            coupled[ids[ids >= 0]] = True
-    nonlinear_spring = (m.tendon_springyield != 0) | np.any(m.tendon_stiffnesspoly != 0, axis=-1)
-    return {
-        "limited": m.tendon_limited.astype(bool) & limits_enabled(m),
-        "stiffness": (m.tendon_stiffness != 0) & spring,
-        "nonlinear stiffness (stiffnesspoly, springyield)": nonlinear_spring & spring,
-        "damping": (m.tendon_damping != 0) & damper,
-        "nonlinear damping (dampingpoly)": np.any(m.tendon_dampingpoly != 0, axis=-1) & damper,
-        "frictionloss": (m.tendon_frictionloss != 0) & (not flags & _DSBL.mjDSBL_FRICTIONLOSS),
-        "armature": m.tendon_armature != 0,
-        "an actuator": actuated,
-        "actuatorfrcrange": m.tendon_actfrclimited.astype(bool) & actuated,
-        "an equality constraint": coupled,
-        "a range narrower than twice its margin (both limits active)": m.tendon_limited.astype(bool)
-        & limits_enabled(m)
-        & (m.tendon_range[:, 1] - m.tendon_range[:, 0] < 2 * m.tendon_margin),
-    }
-
-
-# What fastrl does not simulate yet about a tendon (the rest of _tendon_roles it does).
-_TENDON_REFUSED = (
-    "nonlinear stiffness (stiffnesspoly, springyield)", "nonlinear damping (dampingpoly)",
-    "actuatorfrcrange", "a range narrower than twice its margin (both limits active)",
-)  # fmt: skip
-
-
-def tendons_act(m: mujoco.MjModel) -> bool:
-    """Whether any tendon acts on the dynamics. If none does, ``Model`` keeps no tendons: they
-    would only measure lengths (Gymnasium's humanoid has two such fixed tendons), and the
-    compiled step stays that of a model without them."""
-    return bool(any(mask.any() for mask in _tendon_roles(m).values()))
-
-
-def _tendon_problems(m: mujoco.MjModel) -> list[str]:
-    """Tendons that act on the dynamics in a way fastrl does not simulate, each named with it.
-
-    Springs (with a dead band), dampers, armature and actuators are simulated (``tendon.py``).
-    Armature on a spatial tendon that wraps a geom is refused, as MuJoCo's compiler refuses it
-    (mj_tendonDot has no derivative of the wrap), for a model whose armature was set after
-    compiling.
-    """
-    roles = _tendon_roles(m)
-    geoms = (int(mujoco.mjtWrap.mjWRAP_SPHERE), int(mujoco.mjtWrap.mjWRAP_CYLINDER))
-    wraps_geom = np.zeros(m.ntendon, bool)
-    for i in range(m.ntendon):
-        types = m.wrap_type[m.tendon_adr[i] : m.tendon_adr[i] + m.tendon_num[i]]
-        wraps_geom[i] = np.isin(types, geoms).any()
-    refused = {name: roles[name] for name in _TENDON_REFUSED}
-    refused["armature on a tendon wrapping a geom"] = roles["armature"] & wraps_geom
-    out = []
-    for i in range(m.ntendon):
-        what = [name for name, mask in refused.items() if mask[i]]
-        if what:
-            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_TENDON, i) or str(i)
-            out.append(f"tendon {name!r} ({', '.join(what)})")
-    return out
-
-
-_EQ_KINDS = tuple(
-    int(k)
-    for k in (
-        mujoco.mjtEq.mjEQ_CONNECT,
-        mujoco.mjtEq.mjEQ_WELD,
-        mujoco.mjtEq.mjEQ_JOINT,
-        mujoco.mjtEq.mjEQ_TENDON,
-    )
-)
-
-
-def equalities_enabled(m: mujoco.MjModel) -> bool:
-    return not m.opt.disableflags & (_DSBL.mjDSBL_EQUALITY | _DSBL.mjDSBL_CONSTRAINT)
-
-
-def _equality_problems(m: mujoco.MjModel) -> list[str]:
-    """Equality constraints of a kind fastrl does not simulate (tendon, flex), each named."""
-    if not equalities_enabled(m):
-        return []
-    out = []
-    for i in range(m.neq):
-        if int(m.eq_type[i]) not in _EQ_KINDS:
-            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_EQUALITY, i) or str(i)
-            out.append(f"equality {name!r} ({mujoco.mjtEq(m.eq_type[i]).name} constraint)")
-    return out
-
-
-def fluid_enabled(m: mujoco.MjModel) -> bool:
-    """Whether MuJoCo applies fluid forces: a medium, and not both springs and dampers disabled."""
-    off = _DSBL.mjDSBL_SPRING | _DSBL.mjDSBL_DAMPER
-    medium = m.opt.density > 0 or m.opt.viscosity > 0
-    return bool(medium and (m.opt.disableflags & off) != off)
-
-
-def constraints_enabled(m: mujoco.MjModel) -> bool:
-    return not m.opt.disableflags & _DSBL.mjDSBL_CONSTRAINT
-
-
-def contacts_enabled(m: mujoco.MjModel) -> bool:
-    return not m.opt.disableflags & (_DSBL.mjDSBL_CONTACT | _DSBL.mjDSBL_CONSTRAINT)
-
-
-def limits_enabled(m: mujoco.MjModel) -> bool:
-    return not m.opt.disableflags & (_DSBL.mjDSBL_LIMIT | _DSBL.mjDSBL_CONSTRAINT)
-
-
-def frictionloss_enabled(m: mujoco.MjModel) -> bool:
-    return not m.opt.disableflags & (_DSBL.mjDSBL_FRICTIONLOSS | _DSBL.mjDSBL_CONSTRAINT)
-
-
-def _geom_pairs_off_world(m: mujoco.MjModel, chunk: int = 1 << 22) -> tuple[np.ndarray, np.ndarray]:
-    """Every geom pair ``g1 < g2`` with at least one geom off the world body's weld, unordered.
-
-    Two world-welded geoms never collide, so a scene of many static geoms costs O(moving x
-    ngeom), not O(ngeom^2); the pairs are built in blocks of about ``chunk`` to bound the memory.
-    """
-    weld = m.body_weldid[m.geom_bodyid]
-    moving = np.flatnonzero(weld != 0)
-    static = np.flatnonzero(weld == 0)
-    rows = max(1, chunk // max(1, m.ngeom))
-    g1s, g2s = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
-    for start in range(0, moving.size, rows):
-        part = moving[start : start + rows]
-        later = moving[start:]  # a moving partner pairs with the lower of the two only
-        a = np.concatenate([np.repeat(part, static.size), np.repeat(part, later.size)])
-        b = np.concatenate([np.tile(static, part.size), np.tile(later, part.size)])
-        keep = (weld[b] == 0) | (b > a)
-        g1s.append(np.minimum(a, b)[keep])
-        g2s.append(np.maximum(a, b)[keep])
-    return np.concatenate(g1s), np.concatenate(g2s)
-
-
-def candidate_geom_pairs(m: mujoco.MjModel) -> list[tuple[int, int]]:
-    """Geom pairs that MuJoCo's broadphase filter could let touch (contype/conaffinity, exclusions).
-
-    Excludes pairs in one welded body, pairs of two world-welded geoms, parent-child pairs (unless
-    filterparent is disabled) and ``<exclude>``d body pairs; adds explicit ``<pair>`` elements,
-    which bypass those filters and replace the filtered pair of the same two geoms (MuJoCo keeps
-    the other geom pairs of the same two bodies). The filtered pairs come in ascending
-    ``(g1, g2)`` order, then the explicit ones. The filters are numpy masks over the pairs with a
-    moving geom, so a scene of many static geoms loads in time linear in their number.
-    """
-    explicit = _explicit_pairs(m)
-    g1, g2 = _geom_pairs_off_world(m)
-    ctype, caff = m.geom_contype, m.geom_conaffinity
-    ok = ((ctype[g1] & caff[g2]) != 0) | ((ctype[g2] & caff[g1]) != 0)
-    b1, b2 = m.geom_bodyid[g1], m.geom_bodyid[g2]
-    weld, parent = m.body_weldid, m.body_parentid
-    w1, w2 = weld[b1], weld[b2]
-    ok &= w1 != w2
-    if not m.opt.disableflags & _DSBL.mjDSBL_FILTERPARENT:
-        ok &= ~((w1 != 0) & (w2 != 0) & ((weld[parent[w1]] == w2) | (weld[parent[w2]] == w1)))
-    # An <exclude> signature is (lower body id << 16) | higher body id.
-    low, high = np.minimum(b1, b2).astype(np.int64), np.maximum(b1, b2).astype(np.int64)
-    signature = np.asarray(m.exclude_signature, np.int64)
-    ok &= ~((high < 1 << 16) & np.isin(low << 16 | high, signature))
-    key = g1 * m.ngeom + g2
-    ok &= ~np.isin(key, np.array([min(p) * m.ngeom + max(p) for p in explicit], np.int64))
-    order = np.argsort(key[ok], kind="stable")
-    pairs = list(zip(g1[ok][order].tolist(), g2[ok][order].tolist(), strict=True))
-    pairs.extend(tuple(sorted(p)) for p in explicit)
-    # MuJoCo's collision table is indexed with the lower geom type first.
-    return [(a, b) if m.geom_type[a] <= m.geom_type[b] else (b, a) for a, b in pairs]
-
-
-def _explicit_pairs(m: mujoco.MjModel) -> dict[frozenset, int]:
-    """``{frozenset((geom1, geom2)): pair id}`` of the model's explicit ``<contact><pair>``s."""
-    return {
-        frozenset((int(a), int(b))): i
-        for i, (a, b) in enumerate(zip(m.pair_geom1, m.pair_geom2, strict=True))
-    }
-
-
-def _mix_pair_params(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict[str, np.ndarray]:
-    """Contact parameters of each pair, mixed from its two geoms as MuJoCo mixes them.
-
-    An explicit ``<pair>`` takes its own condim, friction, solref, solreffriction (the elliptic
-    cone's friction rows; other pairs have none and use solref), solimp, margin and gap. Other
-    pairs: condim and friction take the maximum (friction per component, expanded to MuJoCo's
-    5-vector: tangential, tangential, torsional, rolling, rolling, each at least 1e-5); margins
-    and gaps add up (MuJoCo >= 4.0); solref and solimp are a weighted mean with weights from
-    ``solmix``; a geom with higher ``priority`` supplies condim, friction, solref and solimp.
-    """
-    n = len(pairs)
-    out = {
-        "condim": np.zeros(n, np.int32), "friction": np.zeros((n, 5)), "solref": np.zeros((n, 2)),
-        "solimp": np.zeros((n, 5)), "margin": np.zeros(n), "gap": np.zeros(n),
-        "solreffriction": np.zeros((n, 2)),
-    }  # fmt: skip
-    explicit = _explicit_pairs(m)
-    for k, (g1, g2) in enumerate(pairs):
-        pid = explicit.get(frozenset((int(g1), int(g2))))
-        if pid is not None:  # an explicit <pair> states its own parameters
-            out["condim"][k] = m.pair_dim[pid]
-            out["friction"][k] = np.maximum(m.pair_friction[pid], mujoco.mjMINMU)
-            out["solref"][k], out["solimp"][k] = m.pair_solref[pid], m.pair_solimp[pid]
-            out["margin"][k], out["gap"][k] = m.pair_margin[pid], m.pair_gap[pid]
-            out["solreffriction"][k] = m.pair_solreffriction[pid]
-            continue
-        p1, p2 = m.geom_priority[g1], m.geom_priority[g2]
-        if p1 != p2:
-            win = g1 if p1 > p2 else g2
-            condim, fric = m.geom_condim[win], m.geom_friction[win]
-            solref, solimp = m.geom_solref[win], m.geom_solimp[win]
-        else:
-            condim = max(m.geom_condim[g1], m.geom_condim[g2])
-            fric = np.maximum(m.geom_friction[g1], m.geom_friction[g2])
-            s1, s2 = m.geom_solmix[g1], m.geom_solmix[g2]
-            small1, small2 = s1 < mujoco.mjMINVAL, s2 < mujoco.mjMINVAL
-            mix = 0.5 if small1 and small2 else 0.0 if small1 else 1.0 if small2 else s1 / (s1 + s2)
-            if m.geom_solref[g1][0] > 0 and m.geom_solref[g2][0] > 0:
-                solref = mix * m.geom_solref[g1] + (1 - mix) * m.geom_solref[g2]
-            else:  # direct (negative) solref: the stiffer of the two
-                solref = np.minimum(m.geom_solref[g1], m.geom_solref[g2])
-            solimp = mix * m.geom_solimp[g1] + (1 - mix) * m.geom_solimp[g2]
-        out["condim"][k] = condim
-        out["friction"][k] = np.maximum([fric[0], fric[0], fric[1], fric[2], fric[2]], mujoco.mjMINMU)
-        out["solref"][k], out["solimp"][k] = solref, solimp
-        out["margin"][k] = m.geom_margin[g1] + m.geom_margin[g2]
-        out["gap"][k] = m.geom_gap[g1] + m.geom_gap[g2]
-    return out
 
 
 def _fluid_bodies(m: mujoco.MjModel) -> np.ndarray:
@@ -434,7 +119,7 @@ def asset_linesearch(m: mujoco.MjModel) -> str:
 
 
 def _checked(m: mujoco.MjModel, integrator, solver_iterations, nconmax, linesearch) -> tuple[Integrator, int]:
-    """Checks the arguments and the model (``_check_supported``); returns the integrator and the
+    """Checks the arguments and the model (``check_supported``); returns the integrator and the
     solver's iteration count to use."""
     if solver_iterations is None:
         solver_iterations = asset_solver_iterations(m, linesearch)
@@ -447,7 +132,7 @@ def _checked(m: mujoco.MjModel, integrator, solver_iterations, nconmax, linesear
             "the model has no degrees of freedom (no joints or free bodies): there is nothing to "
             "simulate; give at least one body a <joint> or <freejoint>"
         )
-    _check_supported(m)
+    check_supported(m)
     if integrator is not None:
         if integrator not in _INTEGRATORS:
             raise ValueError(f"integrator={integrator!r}; choose one of {sorted(_INTEGRATORS)}")
@@ -461,7 +146,7 @@ def _checked(m: mujoco.MjModel, integrator, solver_iterations, nconmax, linesear
 
 
 def _activation_fields(m: mujoco.MjModel) -> dict:
-    """``Model``'s activation-dynamics fields (``_check_supported`` allows one act per actuator
+    """``Model``'s activation-dynamics fields (``check_supported`` allows one act per actuator
     with dynamics and none without)."""
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
     f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
@@ -495,148 +180,13 @@ def _tendon_fields(m: mujoco.MjModel) -> dict:
     )  # fmt: skip
 
 
-def _hull_vertices(m: mujoco.MjModel, mesh: int) -> np.ndarray:
-    """Mesh-local ids, ascending, of the vertices of the convex hull MuJoCo's compiler built (its
-    ``mesh_graph``: vertex count, face count, each vertex's edge address, then its mesh id), so
-    that ``maxhullvert`` holds and no interior vertex is searched; every vertex without a hull."""
-    adr = m.mesh_graphadr[mesh]
-    if adr < 0:
-        return np.arange(m.mesh_vertnum[mesh])
-    num = int(m.mesh_graph[adr])
-    return np.sort(m.mesh_graph[adr + 2 + num : adr + 2 + 2 * num]).astype(np.int64)
-
-
-def _geometry_fields(m: mujoco.MjModel, pairs: list[tuple[int, int]]) -> dict:
-    """``Model``'s mesh and height-field fields, for the geoms of the colliding pairs only.
-
-    Meshes: the convex hull's vertices and polygons MuJoCo's compiler built (``mesh_poly*``):
-    each vertex's polygons, each polygon's vertices (-1 padded) and normal. Height fields: elevation
-    data (0..1, scaled by ``hfield_size[2]``) and the cell window examined around each geom.
-    """
-    geoms = sorted({g for pair in pairs for g in pair})
-    mesh_geoms = [g for g in geoms if m.geom_type[g] == GeomType.MESH]
-    meshes = sorted({int(m.geom_dataid[g]) for g in mesh_geoms})
-    geom_meshid = np.full(m.ngeom, -1, np.int32)
-    verts, maps, polys, normals, vadr, vnum, padr = [], [], [], [], [], [], []
-    for k, mid in enumerate(meshes):
-        v0, p0, npoly = m.mesh_vertadr[mid], m.mesh_polyadr[mid], m.mesh_polynum[mid]
-        hull = _hull_vertices(m, mid)
-        local = np.full(m.mesh_vertnum[mid], -1, np.int64)
-        local[hull] = np.arange(hull.size)
-        vadr.append(sum(vnum))
-        vnum.append(hull.size)
-        padr.append(len(polys))
-        verts.append(m.mesh_vert[v0 + hull])
-        for v in hull:  # the polygons each vertex lies on (mesh-local polygon ids)
-            a, n = m.mesh_polymapadr[v0 + v], m.mesh_polymapnum[v0 + v]
-            maps.append(m.mesh_polymap[a : a + n])
-        for q in range(p0, p0 + npoly):  # each polygon's vertices (hull-local vertex ids)
-            a, n = m.mesh_polyvertadr[q], m.mesh_polyvertnum[q]
-            polys.append(local[m.mesh_polyvert[a : a + n]])
-        normals.append(m.mesh_polynormal[p0 : p0 + npoly].reshape(-1, 3))
-        geom_meshid[[g for g in mesh_geoms if m.geom_dataid[g] == mid]] = k
-
-    def padded(rows: list) -> np.ndarray:
-        out = np.full((len(rows), max((len(r) for r in rows), default=0)), -1, np.int32)
-        for i, r in enumerate(rows):
-            out[i, : len(r)] = r
-        return out
-
-    hfields = sorted({int(m.geom_dataid[g]) for g in geoms if m.geom_type[g] == GeomType.HFIELD})
-    geom_hfieldid = np.full(m.ngeom, -1, np.int32)
-    for k, hid in enumerate(hfields):
-        geom_hfieldid[(m.geom_type == GeomType.HFIELD) & (m.geom_dataid == hid)] = k
-    window = np.zeros((len(pairs), 2), np.int32)
-    for k, (g1, g2) in enumerate(pairs):
-        if m.geom_type[g1] == GeomType.HFIELD:
-            hid = m.geom_dataid[g1]
-            reach = 2 * (m.geom_rbound[g2] + m.geom_margin[g1] + m.geom_margin[g2])
-            step = np.array(
-                [
-                    2 * m.hfield_size[hid, 1] / (m.hfield_nrow[hid] - 1),  # rows: y
-                    2 * m.hfield_size[hid, 0] / (m.hfield_ncol[hid] - 1),
-                ]
-            )  # cols: x
-            cells = np.floor(reach / step * (1 + 1e-9)).astype(np.int32) + 2
-            window[k] = np.minimum(cells, [m.hfield_nrow[hid] - 1, m.hfield_ncol[hid] - 1])
-    f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
-    hf_data = [
-        m.hfield_data[m.hfield_adr[h] : m.hfield_adr[h] + m.hfield_nrow[h] * m.hfield_ncol[h]]
-        for h in hfields
-    ]
-    hf_num = [m.hfield_nrow[h] * m.hfield_ncol[h] for h in hfields]
-    return dict(
-        geom_meshid=geom_meshid, mesh_vertadr=np.asarray(vadr, np.int32),
-        mesh_vertnum=np.asarray(vnum, np.int32), mesh_polyadr=np.asarray(padr, np.int32),
-        mesh_polymap=padded(maps), mesh_polyvert=padded(polys),
-        mesh_polynormal=f(np.concatenate(normals) if normals else np.zeros((0, 3))),
-        geom_hfieldid=geom_hfieldid,
-        hfield_nrow=np.asarray([m.hfield_nrow[h] for h in hfields], np.int32),
-        hfield_ncol=np.asarray([m.hfield_ncol[h] for h in hfields], np.int32),
-        hfield_adr=np.asarray(np.cumsum([0] + hf_num)[:-1], np.int32), pair_window=window,
-        mesh_vert=f(np.concatenate(verts) if verts else np.zeros((0, 3))),
-        hfield_size=f(np.asarray([m.hfield_size[h] for h in hfields]).reshape(-1, 4)),
-        hfield_data=f(np.concatenate(hf_data) if hf_data else np.zeros(0)),
-        geom_rbound=f(m.geom_rbound),
-    )  # fmt: skip
-
-
-def _faceclip(m: mujoco.MjModel, g1: np.ndarray, g2: np.ndarray, margin: np.ndarray) -> dict:
-    """``multiccd`` (False: ``<flag multiccd="disable"/>``, one contact per convex pair) and
-    ``pair_faceclip``: the pairs MuJoCo gives its face-clipping multi-contact, a mesh against a
-    mesh or a box with no margin (with a margin it searches by perturbation)."""
-    flat = lambda g: np.isin(m.geom_type[g], [GeomType.BOX, GeomType.MESH])  # noqa: E731
-    mesh = (m.geom_type[g1] == GeomType.MESH) | (m.geom_type[g2] == GeomType.MESH)
-    multi = not m.opt.disableflags & _DSBL.mjDSBL_MULTICCD
-    return {
-        "multiccd": multi,
-        "pair_faceclip": flat(g1) & flat(g2) & mesh & (np.asarray(margin) == 0) & multi,
-    }
-
-
-def _default_slots(m: mujoco.MjModel, pairs: list[tuple[int, int]], geometry: dict) -> int:
-    """Contact slots when the scene does not set ``nconmax``: ``default_nconmax`` of the candidates
-    (as ``collision_driver.contact_layout`` lays them out from ``geometry``'s pair window and
-    face-clipping flags), plus one slot per height-field
-    candidate. On rough terrain a foot often touches several prisms at once (MuJoCo C reports 9
-    contacts for the Barkour's four feet on its terrain at rest), so those candidates all keep a
-    slot rather than share a quarter of one."""
-    window, faceclip = geometry["pair_window"], geometry["pair_faceclip"]
-    groups: dict[tuple, list[int]] = {}
-    for k, (a, b) in enumerate(pairs):
-        key = (int(m.geom_type[a]), int(m.geom_type[b])) + ((FACES,) if faceclip[k] else ())
-        groups.setdefault(key, []).append(k)
-    other = terrain = 0
-    single = m.opt.disableflags & _DSBL.mjDSBL_MULTICCD
-    for key, ks in groups.items():
-        count = 1 if single and key in GJK_PAIRS else SUPPORTED[key][1]
-        if count is None:  # a height field: two prisms per cell of the group's window
-            terrain += len(ks) * 2 * int(np.prod(window[ks].max(axis=0)))
-        else:
-            other += len(ks) * count
-    return default_nconmax(other) + terrain
-
-
 def _contact_fields(m: mujoco.MjModel, nconmax: int | None, mjx_caps: bool) -> dict:
-    """``Model``'s pair table (each pair's geoms, mixed parameters and shape data), its contact
-    slots and MJX's pair cap."""
+    """``Model``'s contact fields (``io_contacts.contact_fields``) for the geom pairs MuJoCo's
+    broadphase could let touch (none with contacts disabled), with the scene's MJX caps where
+    ``mjx_caps``."""
     pairs = candidate_geom_pairs(m) if contacts_enabled(m) else []
-    mixed = _mix_pair_params(m, pairs)
-    g1 = np.array([p[0] for p in pairs], np.int32)
-    g2 = np.array([p[1] for p in pairs], np.int32)
-    geometry = _geometry_fields(m, pairs) | _faceclip(m, g1, g2, mixed["margin"])
-    max_pairs, max_points = scene_mjx_caps(m) if mjx_caps else (-1, -1)
-    if nconmax is None:  # <size nconmax>, else MJX's max_contact_points, else the rule
-        named = [n for n in (m.nconmax, max_points) if n > 0]
-        nconmax = named[0] if named else _default_slots(m, pairs, geometry)
-    f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
-    return dict(
-        **geometry, pair_geom1=g1, pair_geom2=g2, pair_condim=mixed["condim"],
-        nconmax=int(nconmax), max_geom_pairs=int(max_pairs),
-        pair_friction=f(mixed["friction"]), pair_solref=f(mixed["solref"]),
-        pair_solimp=f(mixed["solimp"]), pair_solreffriction=f(mixed["solreffriction"]),
-        pair_margin=f(mixed["margin"]), pair_gap=f(mixed["gap"]),
-    )  # fmt: skip
+    caps = scene_mjx_caps(m) if mjx_caps else (-1, -1)
+    return contact_fields(m, pairs, nconmax, caps)
 
 
 def _check_float32_mass(m: mujoco.MjModel, model: Model) -> None:
@@ -674,29 +224,13 @@ def _check_float32_mass(m: mujoco.MjModel, model: Model) -> None:
         ) from None
 
 
-def model_from_mujoco(
-    m: mujoco.MjModel,
-    integrator: str | None = None,
-    solver_iterations: int | None = None,
-    nconmax: int | None = None,
-    linesearch: str | None = None,
-    mjx_caps: bool = False,
-) -> Model:
-    """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
-    if linesearch is None:
-        linesearch = asset_linesearch(m)
-    if linesearch not in LINESEARCHES:
-        raise ValueError(f"linesearch={linesearch!r}; choose one of {LINESEARCHES}")
-    integ, solver_iterations = _checked(m, integrator, solver_iterations, nconmax, linesearch)
-    obj = mujoco.mjtObj
+def _index_fields(m: mujoco.MjModel, eqs: np.ndarray) -> dict:
+    """``Model``'s static index tables (int32): the tree's topology, the geoms', sites',
+    actuators' and equalities' ids and types, and the dofs, bodies and joints that features act
+    on; ``eqs``: the equality constraints kept."""
     jnt_limited = m.jnt_limited if limits_enabled(m) else np.zeros(m.njnt, np.int32)
-    eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
     i32 = lambda x: np.asarray(x, dtype=np.int32).copy()  # noqa: E731
-    f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
-    gravity = m.opt.gravity * (0.0 if m.opt.disableflags & _DSBL.mjDSBL_GRAVITY else 1.0)
-    model = Model(
-        nq=m.nq, nv=m.nv, nu=m.nu, nbody=m.nbody, njnt=m.njnt, ngeom=m.ngeom, nsite=m.nsite,
-        **_tendon_fields(m), **_contact_fields(m, nconmax, mjx_caps),
+    return dict(
         body_parentid=i32(m.body_parentid), body_rootid=i32(m.body_rootid),
         body_jntnum=i32(m.body_jntnum), body_jntadr=i32(m.body_jntadr),
         body_dofnum=i32(m.body_dofnum), body_dofadr=i32(m.body_dofadr),
@@ -714,19 +248,18 @@ def model_from_mujoco(
         actuator_ctrllimited=i32(m.actuator_ctrllimited),
         actuator_forcelimited=i32(m.actuator_forcelimited),
         jnt_actfrclimited=i32(m.jnt_actfrclimited),
-        cone=int(m.opt.cone), **_activation_fields(m),
-        noslip_iterations=int(m.opt.noslip_iterations) if constraints_enabled(m) else 0,
-        noslip_tolerance=float(m.opt.noslip_tolerance),
         eq_type=i32(m.eq_type[eqs]), eq_obj1id=i32(m.eq_obj1id[eqs]), eq_obj2id=i32(m.eq_obj2id[eqs]),
         eq_objtype=i32(m.eq_objtype[eqs]), eq_active0=i32(m.eq_active0[eqs]),
-        solver_iterations=int(solver_iterations), linesearch=linesearch,
-        ls_iterations=int(m.opt.ls_iterations), solver_tolerance=float(m.opt.tolerance),
-        ls_tolerance=float(m.opt.ls_tolerance), meaninertia=float(m.stat.meaninertia),
-        ntree=max(1, int(m.ntree)), dof_treeid=i32(np.maximum(m.dof_treeid, 0)),
-        integrator=int(integ), disableflags=int(m.opt.disableflags),
-        body_names=_names(m, obj.mjOBJ_BODY, m.nbody), jnt_names=_names(m, obj.mjOBJ_JOINT, m.njnt),
-        geom_names=_names(m, obj.mjOBJ_GEOM, m.ngeom), site_names=_names(m, obj.mjOBJ_SITE, m.nsite),
-        actuator_names=_names(m, obj.mjOBJ_ACTUATOR, m.nu),
+        dof_treeid=i32(np.maximum(m.dof_treeid, 0)),
+    )  # fmt: skip
+
+
+def _parameter_fields(m: mujoco.MjModel, eqs: np.ndarray) -> dict:
+    """``Model``'s physical parameters (float arrays, traced): options, bodies, joints, dofs,
+    geoms, sites, actuators and the equality constraints ``eqs``."""
+    f = lambda x: jnp.asarray(np.asarray(x, dtype=np.float64))  # noqa: E731
+    gravity = m.opt.gravity * (0.0 if m.opt.disableflags & _DSBL.mjDSBL_GRAVITY else 1.0)
+    return dict(
         timestep=f(m.opt.timestep), gravity=f(gravity),
         body_pos=f(m.body_pos), body_quat=f(m.body_quat), body_ipos=f(m.body_ipos),
         body_iquat=f(m.body_iquat), body_mass=f(m.body_mass), body_inertia=f(m.body_inertia),
@@ -746,6 +279,40 @@ def model_from_mujoco(
         body_invweight0=f(m.body_invweight0), dof_invweight0=f(m.dof_invweight0),
         impratio=f(m.opt.impratio),
         density=f(m.opt.density), viscosity=f(m.opt.viscosity), wind=f(m.opt.wind),
+    )  # fmt: skip
+
+
+def model_from_mujoco(
+    m: mujoco.MjModel,
+    integrator: str | None = None,
+    solver_iterations: int | None = None,
+    nconmax: int | None = None,
+    linesearch: str | None = None,
+    mjx_caps: bool = False,
+) -> Model:
+    """Converts a compiled ``mujoco.MjModel`` into fastrl's ``Model`` (see ``load_mjcf``)."""
+    if linesearch is None:
+        linesearch = asset_linesearch(m)
+    if linesearch not in LINESEARCHES:
+        raise ValueError(f"linesearch={linesearch!r}; choose one of {LINESEARCHES}")
+    integ, solver_iterations = _checked(m, integrator, solver_iterations, nconmax, linesearch)
+    obj = mujoco.mjtObj
+    eqs = np.arange(m.neq) if equalities_enabled(m) else np.zeros(0, np.int64)
+    model = Model(
+        nq=m.nq, nv=m.nv, nu=m.nu, nbody=m.nbody, njnt=m.njnt, ngeom=m.ngeom, nsite=m.nsite,
+        **_tendon_fields(m), **_contact_fields(m, nconmax, mjx_caps),
+        **_index_fields(m, eqs), **_parameter_fields(m, eqs),
+        cone=int(m.opt.cone), **_activation_fields(m),
+        noslip_iterations=int(m.opt.noslip_iterations) if constraints_enabled(m) else 0,
+        noslip_tolerance=float(m.opt.noslip_tolerance),
+        solver_iterations=int(solver_iterations), linesearch=linesearch,
+        ls_iterations=int(m.opt.ls_iterations), solver_tolerance=float(m.opt.tolerance),
+        ls_tolerance=float(m.opt.ls_tolerance), meaninertia=float(m.stat.meaninertia),
+        ntree=max(1, int(m.ntree)),
+        integrator=int(integ), disableflags=int(m.opt.disableflags),
+        body_names=_names(m, obj.mjOBJ_BODY, m.nbody), jnt_names=_names(m, obj.mjOBJ_JOINT, m.njnt),
+        geom_names=_names(m, obj.mjOBJ_GEOM, m.ngeom), site_names=_names(m, obj.mjOBJ_SITE, m.nsite),
+        actuator_names=_names(m, obj.mjOBJ_ACTUATOR, m.nu),
     )  # fmt: skip
     _check_float32_mass(m, model)
     return model

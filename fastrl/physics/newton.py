@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import smooth
+from fastrl.physics import factor
 from fastrl.physics.math import matvec
 from fastrl.physics.solver import Rows, finish, gradient_hessian, hessian_structure, make_rows, primal_cost
 from fastrl.physics.types import Data, Model
@@ -250,79 +250,98 @@ def _update_bracket(p: _Point, candidates) -> tuple[_Point, jax.Array]:
     return p, moved
 
 
-def _transition(s: _Search, q: _Point, gtol, ls_iterations: int) -> _Search:
-    """Advances every island's line search past the evaluation ``q`` (PrimalSearch's steps)."""
-    ph = s.phase
-    evals = s.evals + (ph != _DONE)
-    st = dict(s._asdict(), evals=evals)
+def _set(st: dict, mask, **kw) -> None:
+    """Sets the fields ``kw`` of the search state ``st`` (``_Search``'s fields by name) where
+    ``mask``: points with ``_pick``, arrays with ``where``."""
+    for name, value in kw.items():
+        old = st[name]
+        st[name] = _pick(mask, old, value) if isinstance(old, _Point) else jnp.where(mask, value, old)
 
-    def set_(mask, **kw):
-        for name, value in kw.items():
-            old = st[name]
-            st[name] = _pick(mask, old, value) if isinstance(old, _Point) else jnp.where(mask, value, old)
 
-    def done(mask, p: _Point):
-        set_(mask, phase=_DONE, alpha=p.alpha, improvement=-p.cost)
+def _done(st: dict, mask, p: _Point) -> None:
+    """Ends the searches of ``mask`` at the point ``p``."""
+    _set(st, mask, phase=_DONE, alpha=p.alpha, improvement=-p.cost)
 
-    def bracket_check(mask):
-        go = mask & (evals < ls_iterations)
-        set_(go, phase=_MID, req=0.5 * (st["p1"].alpha + st["p2"].alpha))
-        final = mask & ~go
-        p1, p2 = st["p1"], st["p2"]
-        use1 = final & (p1.cost <= p2.cost) & (p1.cost < 0)
-        use2 = final & ~use1 & (p2.cost <= p1.cost) & (p2.cost < 0)
-        done(use1, p1)
-        done(use2, p2)
-        set_(final & ~use1 & ~use2, phase=_DONE, alpha=0.0, improvement=0.0)
 
+def _bracket_check(st: dict, mask, ls_iterations: int) -> None:
+    """The searches of ``mask``, with a new bracket: the midpoint next while evaluations are left,
+    else done at the bracket end of lower cost where that cost is negative (else alpha = 0)."""
+    go = mask & (st["evals"] < ls_iterations)
+    _set(st, go, phase=_MID, req=0.5 * (st["p1"].alpha + st["p2"].alpha))
+    final = mask & ~go
+    p1, p2 = st["p1"], st["p2"]
+    use1 = final & (p1.cost <= p2.cost) & (p1.cost < 0)
+    use2 = final & ~use1 & (p2.cost <= p1.cost) & (p2.cost < 0)
+    _done(st, use1, p1)
+    _done(st, use2, p2)
+    _set(st, final & ~use1 & ~use2, phase=_DONE, alpha=0.0, improvement=0.0)
+
+
+def _unbracketed(st: dict, ph, q: _Point, gtol, ls_iterations: int) -> None:
+    """The phases before a bracket, past the evaluation ``q``: alpha = 0, one Newton step from it,
+    then one-sided Newton steps until the slope changes sign."""
+    evals = st["evals"]
     # the first two evaluations: alpha = 0, then one Newton step from it
     m = ph == _P0
-    set_(m, p0=q, phase=_P1, req=_newton_from(q))
+    _set(st, m, p0=q, phase=_P1, req=_newton_from(q))
     m = ph == _P1
-    set_(m, p1=q)
+    _set(st, m, p1=q)
     conv = m & (jnp.abs(q.d0) < gtol) & ((q.alpha == 0) | (q.cost < 0))
-    done(conv, q)
+    _done(st, conv, q)
     first = m & ~conv
-    set_(first, direction=jnp.where(q.d0 < 0, 1.0, -1.0), p2=st["p0"])
+    _set(st, first, direction=jnp.where(q.d0 < 0, 1.0, -1.0), p2=st["p0"])
     # one-sided Newton steps until the slope changes sign
     m = ph == _ONESIDED
-    set_(m, p1=q)
+    _set(st, m, p1=q)
     conv = m & (jnp.abs(q.d0) < gtol) & (q.cost < 0)
-    done(conv, q)
+    _done(st, conv, q)
     onesided = first | (m & ~conv)
     p1 = st["p1"]
     go = onesided & (p1.d0 * st["direction"] <= -gtol) & (evals < ls_iterations)
-    set_(go, p2=p1, phase=_ONESIDED, req=_newton_from(p1))
+    _set(st, go, p2=p1, phase=_ONESIDED, req=_newton_from(p1))
     after = onesided & ~go
-    done(after & (evals >= ls_iterations), p1)  # could not bracket
-    set_(after & (evals < ls_iterations), p2next=p1, phase=_P1NEXT, req=_newton_from(p1))
-    # bracketed search
+    _done(st, after & (evals >= ls_iterations), p1)  # could not bracket
+    _set(st, after & (evals < ls_iterations), p2next=p1, phase=_P1NEXT, req=_newton_from(p1))
+
+
+def _bracketed(st: dict, ph, q: _Point, pending2, gtol, ls_iterations: int) -> None:
+    """The bracketed search past the evaluation ``q``: the bracket ends' Newton points, then the
+    midpoint, until a point's slope is within ``gtol`` or the bracket cannot move;
+    ``pending2``: the search's ``pending2`` before this step."""
     m = ph == _P1NEXT
-    set_(m, p1next=q)
-    bracket_check(m)
+    _set(st, m, p1next=q)
+    _bracket_check(st, m, ls_iterations)
     m = ph == _MID
-    set_(m, pmid=q)
+    _set(st, m, pmid=q)
     candidates = (st["p1next"], st["p2next"], q)
     best, found = candidates[0], jnp.zeros(ph.shape, bool)
     for c in candidates:
         better = (jnp.abs(c.d0) < gtol) & (~found | (c.cost < best.cost))
         best, found = _pick(better, best, c), found | better
-    done(m & found, best)
+    _done(st, m & found, best)
     m = m & ~found
     p1, moved1 = _update_bracket(st["p1"], candidates)
     p2, moved2 = _update_bracket(st["p2"], candidates)
-    done(m & ~moved1 & ~moved2, q)  # no bracket update possible: the midpoint
+    _done(st, m & ~moved1 & ~moved2, q)  # no bracket update possible: the midpoint
     m = m & (moved1 | moved2)
-    set_(m, p1=p1, p2=p2, pending2=moved2)
-    set_(m & moved1, phase=_UPD1, req=_newton_from(p1))
-    set_(m & ~moved1, phase=_UPD2, req=_newton_from(p2))
+    _set(st, m, p1=p1, p2=p2, pending2=moved2)
+    _set(st, m & moved1, phase=_UPD1, req=_newton_from(p1))
+    _set(st, m & ~moved1, phase=_UPD2, req=_newton_from(p2))
     m = ph == _UPD1
-    set_(m, p1next=q)
-    set_(m & st["pending2"], phase=_UPD2, req=_newton_from(st["p2"]))
-    check = m & ~s.pending2
+    _set(st, m, p1next=q)
+    _set(st, m & st["pending2"], phase=_UPD2, req=_newton_from(st["p2"]))
+    check = m & ~pending2
     m = ph == _UPD2
-    set_(m, p2next=q)
-    bracket_check(check | m)
+    _set(st, m, p2next=q)
+    _bracket_check(st, check | m, ls_iterations)
+
+
+def _transition(s: _Search, q: _Point, gtol, ls_iterations: int) -> _Search:
+    """Advances every island's line search past the evaluation ``q`` (PrimalSearch's steps)."""
+    ph = s.phase
+    st = dict(s._asdict(), evals=s.evals + (ph != _DONE))
+    _unbracketed(st, ph, q, gtol, ls_iterations)
+    _bracketed(st, ph, q, s.pending2, gtol, ls_iterations)
     return _Search(**st)
 
 
@@ -377,8 +396,8 @@ def _solve_jvp(primals, tangents):
 
     def newton_step(m, d):
         rows = make_rows(m, d)
-        grad, hess = gradient_hessian(rows, d, a, rows.jar(a), smooth.dense_solver(structure) is not None)
-        return finish(rows, d, a - smooth.solve_structured(structure, hess, grad))
+        grad, hess = gradient_hessian(rows, d, a, rows.jar(a), factor.dense_solver(structure) is not None)
+        return finish(rows, d, a - factor.solve_structured(structure, hess, grad))
 
     _, tangent = jax.jvp(newton_step, primals, tangents)
     return out, tangent
@@ -395,13 +414,13 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
     a = jnp.where(primal_cost(rows, d, warm) > primal_cost(rows, d, d.qacc_smooth), d.qacc_smooth, warm)
     a = jnp.where(constrained, a, d.qacc_smooth)
     structure = hessian_structure(m)
-    dense = smooth.dense_solver(structure) is not None
+    dense = factor.dense_solver(structure) is not None
     res = rows.jar(a)
     grad, hess = gradient_hessian(rows, d, a, res, dense)
     real = isl.scale > 0
     gradient_ok = isl.scale * isl.norm(grad) < tol
-    gap = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * smooth.solve(m, d.qM, grad))) < tol
-    mgrad = smooth.solve_structured(structure, hess, grad)
+    gap = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * factor.solve(m, d.qM, grad))) < tol
+    mgrad = factor.solve_structured(structure, hess, grad)
     decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
     stopped = ~real | (gap & gradient_ok) | (gradient_ok & (decrement < tol))
 
@@ -416,7 +435,7 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
         js = rows.j(search)
         res = tuple(r + (o @ alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
         grad, hess = gradient_hessian(rows, d, a, res, dense)
-        mgrad = smooth.solve_structured(structure, hess, grad)
+        mgrad = factor.solve_structured(structure, hess, grad)
         improvement = isl.scale * improvement
         gradient = isl.scale * isl.norm(grad)
         decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import constraint, equality, newton, smooth, solver
+from fastrl.physics import constraint, equality, factor, newton, solver
 from fastrl.physics.collision_driver import candidate_pairs
 from fastrl.physics.types import Data, Model
 
@@ -196,7 +196,7 @@ def _cone(p: _Problem, dim: int):
 
 def _problem(m: Model, d: Data) -> _Problem:
     """The rows, ``M^-1 J^T`` and this step's islands (``newton.islands``: each row's island)."""
-    solve = jax.vmap(lambda v: smooth.solve(m, d.qM, v))
+    solve = jax.vmap(lambda v: factor.solve(m, d.qM, v))
     isl = newton.islands(m, solver.make_rows(m, d), d.qM)
     row_island = (((d.efc_J != 0).astype(d.qM.dtype) @ isl.dof) > 0).astype(d.qM.dtype)
     live = jnp.ones(isl.dof.shape[1], bool)
@@ -230,8 +230,8 @@ def solve(m: Model, d: Data) -> Data:
             s = jax.lax.scan(_cone(q, dim), s, (normals, mu))[0]
         return s.force, s.qacc, live & ~(s.improvement * p.scale < m.noslip_tolerance)
 
-    qacc0 = d.qacc_smooth + smooth.solve(m, d.qM, d.efc_force @ d.efc_J)
+    qacc0 = d.qacc_smooth + factor.solve(m, d.qM, d.efc_force @ d.efc_J)
     start = (d.efc_force, qacc0, p.live)
     force, _, _ = jax.lax.fori_loop(0, m.noslip_iterations, iteration, start)
     qfrc = force @ d.efc_J
-    return d.replace(efc_force=force, qfrc_constraint=qfrc, qacc=d.qacc_smooth + smooth.solve(m, d.qM, qfrc))
+    return d.replace(efc_force=force, qfrc_constraint=qfrc, qacc=d.qacc_smooth + factor.solve(m, d.qM, qfrc))

@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fastrl.physics import constraint, equality, smooth, tree
+from fastrl.physics import constraint, equality, factor, tree
 from fastrl.physics.collision_driver import candidate_pairs
 from fastrl.physics.math import matvec
 from fastrl.physics.types import Data, Model
@@ -66,7 +66,7 @@ def hessian_structure(m: Model) -> tuple[tuple[int, ...], ...]:
     # a tendon's row may span branches too (its Jacobian reaches every joint it crosses)
     coupled = coupled or constraint.friction_tendons(m).size or constraint.limited_tendons(m).size
     if not coupled:
-        return smooth.ancestors(m)
+        return factor.ancestors(m)
     return tuple(tuple(range(k - 1, -1, -1)) for k in range(m.nv))
 
 
@@ -265,7 +265,7 @@ def primal_cost(rows: Rows, d: Data, a: jax.Array) -> jax.Array:
 
 def _add_outer(hess: jax.Array, left: jax.Array, right: jax.Array, dense: bool) -> jax.Array:
     """``hess + left^T right`` for (r, nv) row sets. A ``dense`` Hessian (one that a dense
-    Cholesky factorises, ``smooth.dense_solver``) takes the product as a dot where no loop boundary
+    Cholesky factorises, ``factor.dense_solver``) takes the product as a dot where no loop boundary
     separates it from the factorisation (``newton``): XLA materialises a dot's result, where it
     fuses the unrolled sum into each of the column-wise factorisation's scalar reads and recomputes
     it there (the Berkeley humanoid's Newton solve at batch 1024 on one core: 91 us/env with the
@@ -349,7 +349,7 @@ def _newton_step(structure, rows: Rows, d: Data, carry, last: bool = False):
     """One Newton step from ``carry = (a, res, grad, hess)``: the new ``(a, res, grad, hess)``, or
     ``(a, res)`` for the ``last`` step, whose gradient and Hessian nothing would read."""
     a, res, grad, hess = carry
-    step = -smooth.solve_structured(structure, hess, grad)
+    step = -factor.solve_structured(structure, hess, grad)
     # Exact line search on phi(alpha) = cost(a + alpha step), piecewise quadratic and convex.
     js = rows.j(step)  # directly, not jar(step) + aref: that cancels to rounding noise
     s_m_s = jnp.sum(step * matvec(d.qM, step))

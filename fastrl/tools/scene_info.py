@@ -14,7 +14,7 @@ import collections
 import mujoco
 import numpy as np
 
-from fastrl.physics import actuation, collision_driver, constraint, equality, io, tendon
+from fastrl.physics import actuation, collision_driver, constraint, equality, io, io_checks, tendon
 from fastrl.physics.types import GeomType, JointType, Model
 
 
@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     try:
         m = io.load_mjcf(args.model, integrator=args.integrator, solver_iterations=args.solver_iterations)
-    except (io.UnsupportedFeatureError, FileNotFoundError, ValueError) as err:
+    except (io_checks.UnsupportedFeatureError, FileNotFoundError, ValueError) as err:
         parser.exit(2, f"error: {err}\n")
     mj_name = mujoco.MjModel.from_xml_path(args.model).names.split(b"\0")[0].decode() or args.model
     print(f"{mj_name}: {args.model}")

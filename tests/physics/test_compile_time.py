@@ -4,7 +4,7 @@ dm_control's CMU humanoid (62 dofs, 26 deep) took about 3 minutes to compile one
 2-core machine, most of it in the elementwise L^T D L elimination of its mass matrix, whose
 program grows with the sum of each dof's depth squared, used three times a step (the smooth
 acceleration, the Newton solver's gap and the implicit damping). Beyond
-``smooth.LEVEL_FACTOR_MIN_STEPS`` elimination steps the factor and solve take one dense step per
+``factor.LEVEL_FACTOR_MIN_STEPS`` elimination steps the factor and solve take one dense step per
 level of the tree instead. ``python -m experiments.compile_time`` measures the third-party models.
 """
 
@@ -17,8 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from fastrl import physics
-from fastrl.physics import collision_gjk as gjk
-from fastrl.physics import smooth
+from fastrl.physics import collision_ccd as ccd
+from fastrl.physics import factor
 
 
 def _tree(depth: int, branches: int = 5) -> str:
@@ -54,24 +54,24 @@ def _random_tree(nv: int, seed: int) -> tuple[tuple[tuple[int, ...], ...], np.nd
 def test_level_factor_equals_the_elementwise_elimination(x64):
     """The level-by-level factor and solve are the elementwise ones, to rounding (float64)."""
     anc, qm = _random_tree(60, seed=0)
-    assert smooth.elimination_steps(anc) >= 1000
+    assert factor.elimination_steps(anc) >= 1000
     vec = np.random.default_rng(1).normal(size=qm.shape[0])
-    low, diag = smooth._factor(anc, jnp.asarray(qm))
-    low_l, diag_l = smooth._factor_levels(anc, jnp.asarray(qm))
+    low, diag = factor._factor(anc, jnp.asarray(qm))
+    low_l, diag_l = factor._factor_levels(anc, jnp.asarray(qm))
     np.testing.assert_allclose(low_l, low, rtol=0, atol=1e-12)
     np.testing.assert_allclose(diag_l, diag, rtol=1e-12)
-    x = smooth._solve_levels(anc, (low_l, diag_l), jnp.asarray(vec))
-    elementwise = smooth._solve_factored(anc, (low, diag), jnp.asarray(vec))
+    x = factor._solve_levels(anc, (low_l, diag_l), jnp.asarray(vec))
+    elementwise = factor._solve_factored(anc, (low, diag), jnp.asarray(vec))
     np.testing.assert_allclose(x, elementwise, rtol=0, atol=1e-10)
     np.testing.assert_allclose(qm @ np.asarray(x), vec, rtol=0, atol=1e-10)
 
 
 def _solve_program_size(depth: int) -> int:
-    """Operations in the lowered (unoptimised) program of ``smooth.solve`` with the mass matrix
+    """Operations in the lowered (unoptimised) program of ``factor.solve`` with the mass matrix
     of a ``_tree(depth)``."""
     m = physics.load_mjcf(_tree(depth))
     qm, vec = jnp.eye(m.nv), jnp.ones(m.nv)
-    text = jax.jit(lambda qm, vec: smooth.solve(m, qm, vec)).lower(qm, vec).as_text()
+    text = jax.jit(lambda qm, vec: factor.solve(m, qm, vec)).lower(qm, vec).as_text()
     return sum(1 for line in text.splitlines() if " = " in line)
 
 
@@ -91,7 +91,7 @@ def test_wide_deep_tree_step_compiles_quickly():
     and it steps finite. The tests' persistent compilation cache may serve a repeat run, so the
     instruction bound is the one that always holds the line."""
     m = physics.load_mjcf(_tree(10))
-    assert smooth.elimination_steps(smooth.ancestors(m)) >= smooth.LEVEL_FACTOR_MIN_STEPS
+    assert factor.elimination_steps(factor.ancestors(m)) >= factor.LEVEL_FACTOR_MIN_STEPS
     d = physics.make_data(m)
     t0 = time.perf_counter()
     compiled = jax.jit(lambda d: physics.step(m, d)).lower(d).compile()
@@ -119,9 +119,9 @@ def test_multi_contact_search_compiles_gjk_epa_once():
     hull = jnp.asarray(np.random.default_rng(0).normal(size=(n, verts, 3)))
     poses = (jnp.zeros((n, 3)), eye, jnp.ones((n, 3)), jnp.ones((n, 3)), eye, jnp.ones((n, 3)))
     box, mesh = int(physics.types.GeomType.BOX), int(physics.types.GeomType.MESH)
-    one = _optimised_instructions(jax.vmap(gjk.single_contact(box, mesh)), *poses, jnp.zeros((n, 1, 3)), hull)
+    one = _optimised_instructions(jax.vmap(ccd.single_contact(box, mesh)), *poses, jnp.zeros((n, 1, 3)), hull)
     search = _optimised_instructions(
-        jax.vmap(gjk.convex_pair(box, mesh)),
+        jax.vmap(ccd.convex_pair(box, mesh)),
         *poses,
         jnp.zeros((n, 1, 3)),
         hull,

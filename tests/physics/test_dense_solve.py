@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from fastrl.physics import smooth
+from fastrl.physics import factor
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -20,8 +20,8 @@ def test_column_cholesky_and_solve_match_numpy(n):
     a = rng.standard_normal((n, n))
     qm, vec = a @ a.T + n * np.eye(n), rng.standard_normal(n)
     with jax.enable_x64(True):
-        c = np.asarray(smooth._dense_cholesky(qm))
-        x = np.asarray(smooth._dense_cho_solve(c, vec))
+        c = np.asarray(factor._dense_cholesky(qm))
+        x = np.asarray(factor._dense_cho_solve(c, vec))
     np.testing.assert_allclose(c, np.linalg.cholesky(qm), rtol=0, atol=1e-12)
     np.testing.assert_allclose(x, np.linalg.solve(qm, vec), rtol=1e-12, atol=1e-12)
 
@@ -29,12 +29,12 @@ def test_column_cholesky_and_solve_match_numpy(n):
 _TWO_DEVICES = """
 import jax, jax.numpy as jnp
 from fastrl import envs, physics
-from fastrl.physics import smooth
+from fastrl.physics import factor
 assert jax.device_count() == 2
 env = envs.make("humanoid")
 d = env.reset(jax.random.PRNGKey(0)).data
 text = jax.jit(lambda d: physics.step(env.model, d)).lower(d).as_text()
-print(smooth.dense_solver(tuple(tuple(range(k - 1, -1, -1)) for k in range(23))), "lapack" in text)
+print(factor.dense_solver(tuple(tuple(range(k - 1, -1, -1)) for k in range(23))), "lapack" in text)
 """
 
 
@@ -45,5 +45,5 @@ def test_two_devices_keep_lapack_out_of_the_program():
     out = subprocess.run([sys.executable, "-c", _TWO_DEVICES], env=env, cwd=ROOT, capture_output=True,
                          text=True, timeout=300, check=True)  # fmt: skip
     assert out.stdout.split() == ["columns", "False"]
-    one = smooth.dense_solver(tuple(tuple(range(k - 1, -1, -1)) for k in range(23)))
+    one = factor.dense_solver(tuple(tuple(range(k - 1, -1, -1)) for k in range(23)))
     assert one == ("lapack" if jax.device_count() == 1 else "columns")

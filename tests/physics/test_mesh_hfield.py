@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from fastrl import physics
+from fastrl.physics import collision_ccd as ccd
 from fastrl.physics import collision_convex as convex
-from fastrl.physics import collision_gjk as gjk
 from fastrl.physics.collision_driver import Convex, contact_layout, gjk_slots, pair_groups
 from fastrl.physics.collision_primitive import _FAR
 from fastrl.physics.types import GeomType
@@ -327,7 +327,7 @@ def _compared_to_alone(m, d, pairs) -> int:
     compared = 0
     for p in pairs:
         g1, g2 = int(m.pair_geom1[p]), int(m.pair_geom2[p])
-        alone = gjk.convex_pair(int(m.geom_type[g1]), int(m.geom_type[g2]))
+        alone = ccd.convex_pair(int(m.geom_type[g1]), int(m.geom_type[g2]))
         alone = jax.jit(jax.vmap(alone, (0, 0, None, 0, 0, None, None, None, None, None, None)))
         rbound = min(m.geom_rbound[g1], m.geom_rbound[g2])
         pose1 = (d.geom_xpos[:, g1], d.geom_xmat[:, g1], m.geom_size[g1])
@@ -577,7 +577,7 @@ def test_gjk_epa_contacts_are_differentiable(types, x64):
     gradient with respect to the second geom's position equals central differences, overlapping
     (EPA) and apart (GJK), and is finite."""
     t1, t2 = (getattr(GeomType, t.upper()) for t in types)
-    contact = gjk.single_contact(t1, t2)
+    contact = ccd.single_contact(t1, t2)
     cube, size, eye = jnp.asarray(_CUBE), jnp.array([0.05, 0.05, 0.05]), jnp.eye(3)
     rot = jnp.asarray(_RNG_GRAD.standard_normal((3, 3)))
     mat = jnp.linalg.qr(rot)[0] * jnp.sign(jnp.linalg.det(jnp.linalg.qr(rot)[0]))

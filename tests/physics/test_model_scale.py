@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from fastrl import physics
-from fastrl.physics import io, smooth
+from fastrl.physics import io, io_contacts, smooth
 
 
 def _chain(depth: int, contacts: bool) -> str:
@@ -163,6 +163,6 @@ def test_pair_table_matches_the_pairwise_filter(filterparent):
       <contact><exclude body1="b3" body2="b5"/><exclude body1="c7" body2="b2"/>
         <pair geom1="g1" geom2="g2"/><pair geom1="s4" geom2="s3"/></contact></mujoco>"""
     m = mujoco.MjModel.from_xml_string(xml)
-    pairs = io.candidate_geom_pairs(m)
+    pairs = io_contacts.candidate_geom_pairs(m)
     assert pairs == _pairs_by_loop(m)
     assert len(pairs) > 500
