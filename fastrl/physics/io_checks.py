@@ -15,13 +15,7 @@ from fastrl.physics.types import JointType
 _DSBL = mujoco.mjtDisableBit
 # The activation dynamics fastrl simulates (actuation.py); muscles, DC motors and PID servos not.
 _DYNTYPES = tuple(
-    int(k)
-    for k in (
-        mujoco.mjtDyn.mjDYN_NONE,
-        mujoco.mjtDyn.mjDYN_INTEGRATOR,
-        mujoco.mjtDyn.mjDYN_FILTER,
-        mujoco.mjtDyn.mjDYN_FILTEREXACT,
-    )
+    int(getattr(mujoco.mjtDyn, f"mjDYN_{k}")) for k in ("NONE", "INTEGRATOR", "FILTER", "FILTEREXACT")
 )
 
 
@@ -190,15 +184,7 @@ def _tendon_problems(m: mujoco.MjModel) -> list[str]:
     return out
 
 
-_EQ_KINDS = tuple(
-    int(k)
-    for k in (
-        mujoco.mjtEq.mjEQ_CONNECT,
-        mujoco.mjtEq.mjEQ_WELD,
-        mujoco.mjtEq.mjEQ_JOINT,
-        mujoco.mjtEq.mjEQ_TENDON,
-    )
-)
+_EQ_KINDS = tuple(int(getattr(mujoco.mjtEq, f"mjEQ_{k}")) for k in ("CONNECT", "WELD", "JOINT", "TENDON"))
 
 
 def equalities_enabled(m: mujoco.MjModel) -> bool:
