@@ -520,3 +520,12 @@ def test_device_split_times_the_step_on_each_device_count(tmp_path):
     assert [(r["env"], r["devices"], r["batch"]) for r in rows] == [("hopper", 1, 8), ("hopper", 2, 8)]
     assert all(r["control_steps_per_s"] > 0 and r["compile_s"] > 0 for r in rows)
     assert "| hopper | 8 | 2 |" in (tmp_path / "device_split.md").read_text()
+
+
+def test_dense_factor_times_each_design_and_they_agree(tmp_path):
+    subprocess.run(_module("dense_factor", "--sizes", "14", "--batch", "128", "--out", str(tmp_path)),
+                   check=True, cwd=ROOT, timeout=600)  # fmt: skip
+    (row,) = results.load("dense_factor", tmp_path)["rows"]
+    designs = ("lapack", "columns", "minor", "chunked")
+    assert all(row[d] > 0 for d in designs) and all(row[f"{d}_err"] < 1e-4 for d in designs), row
+    assert "| 14 | 128 |" in (tmp_path / "dense_factor.md").read_text()
