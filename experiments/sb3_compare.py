@@ -65,14 +65,15 @@ def gymnasium_task(env_name: str) -> tuple[str, dict]:
 
 
 def run_fastrl(
-    env: str, seed: int, seconds: float, snapshots: int, quick: bool, out: pathlib.Path
+    env: str, seed: int, seconds: float, snapshots: int, quick: bool, out: pathlib.Path, algo: str = "ppo"
 ) -> list[dict]:
-    """Trains fastrl's PPO for ``seconds`` with a cold compilation cache; its checkpoints as
-    snapshots (seconds since launch, env steps, the checkpoint's step)."""
+    """Trains fastrl's ``algo`` (its shipped settings for ``env``) for ``seconds`` with a cold
+    compilation cache; its checkpoints as snapshots (seconds since launch, env steps, the
+    checkpoint's step)."""
     from fastrl.training.checkpoint import CHECKPOINT_DIR, Checkpointer
 
-    run_dir = out / f"fastrl_ppo-{env}-{seed}"
-    cmd = [sys.executable, "-m", "fastrl.train", f"env={env}", "algo=ppo", f"seed={seed}",
+    run_dir = out / f"fastrl_{algo}-{env}-{seed}"
+    cmd = [sys.executable, "-m", "fastrl.train", f"env={env}", f"algo={algo}", f"seed={seed}",
            f"run_dir={run_dir}", f"train.max_seconds={seconds}", f"checkpoint.seconds={seconds / snapshots}",
            f"checkpoint.keep={4 * snapshots}", "logger=quiet"]  # fmt: skip
     if quick:

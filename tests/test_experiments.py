@@ -298,6 +298,56 @@ def test_sb3_compare_merge_replaces_only_the_envs_measured_again(tmp_path):
     assert merged(tmp_path / "missing.json", new) is new
 
 
+def test_sb3_budgets_medians_best_learners_and_time_to_the_target():
+    from experiments.sb3_budgets import summarize
+
+    snap = lambda t, r: {"seconds": t, "env_steps": 10 * t, "returns": [r - 1, r + 1]}  # noqa: E731
+    runs = {
+        "fastrl_sac": {"0": [snap(50, 100), snap(110, 900), snap(170, 950)],
+                       "1": [snap(55, 200), snap(115, 400), snap(175, 990)],
+                       "2": [snap(60, 900), snap(120, 100), snap(180, 960)]},
+        "fastrl_ppo": {"0": [snap(60, 300), snap(120, 300), snap(170, 300)]},
+        "sb3_ppo": {"0": [snap(60, 500), snap(120, 800), snap(180, 940)],
+                    "1": [snap(60, 400), snap(120, 700), snap(180, 920)]},
+    }  # fmt: skip
+    out = summarize(runs, [100.0, 180.0])
+    early, late = out["budgets"]["100"], out["budgets"]["180"]
+    # At 100 s: the last snapshot by then (fastrl_sac: 100, 200, 900 -> median 200).
+    assert early["medians"] == {"fastrl_sac": 200, "fastrl_ppo": 300, "sb3_ppo": 450}
+    assert tuple(early["fastrl_best"]) == ("fastrl_ppo", 300)
+    assert tuple(early["sb3_best"]) == ("sb3_ppo", 450)
+    assert late["medians"]["fastrl_sac"] == 960 and tuple(late["sb3_best"]) == ("sb3_ppo", 930)
+    # Target 930: seeds reach it to stay at 170, 175 and 180 s (seed 2's early 900 falls back).
+    assert out["target"] == 930 and out["times"]["fastrl_sac"] == 175
+    assert out["times"]["fastrl_ppo"] is None and out["speedup"] == pytest.approx(180 / 175)
+
+
+def test_sb3_budgets_quick_keeps_its_cells(tmp_path):
+    """FastTD3 and SB3 PPO each train on a wall-clock budget, every snapshot scored in Gymnasium's
+    Hopper-v5; a second command skips the cells the record already holds."""
+    result = _run_quick("sb3_budgets", tmp_path, "sb3_budgets_quick.json")
+    runs = result["runs"]["hopper"]
+    assert list(runs) == ["fastrl_fasttd3", "sb3_ppo"]
+    assert all(list(seeds) == ["0"] for seeds in runs.values())
+    for learner, seeds in runs.items():
+        snaps = seeds["0"]
+        assert snaps and all(len(s["returns"]) == 2 and s["env_steps"] > 0 for s in snaps), learner
+        assert [s["seconds"] for s in snaps] == sorted(s["seconds"] for s in snaps)
+        assert any(s["seconds"] <= 40 for s in snaps), learner  # a snapshot within the budget
+    summary = result["summary"]["hopper"]
+    assert summary["budgets"]["40"]["medians"]["sb3_ppo"] == pytest.approx(
+        np.mean([s for s in runs["sb3_ppo"]["0"] if s["seconds"] <= 40][-1]["returns"])
+    )
+    assert len(result["log"]) == 2
+    md = (tmp_path / "sb3_budgets_quick.md").read_text()
+    assert "| hopper | fastrl FastTD3 | 1 |" in md
+    before = (tmp_path / "sb3_budgets_quick.json").read_text()
+    subprocess.run(
+        _module("sb3_budgets", "--quick", "--out", str(tmp_path)), check=True, cwd=ROOT, timeout=300
+    )
+    assert json.loads((tmp_path / "sb3_budgets_quick.json").read_text())["runs"] == json.loads(before)["runs"]
+
+
 def test_time_to_return_quick(tmp_path):
     stem = "time_to_return_inverted_pendulum"
     result = _run_quick("time_to_return", tmp_path, f"{stem}_quick.json")

@@ -39,10 +39,10 @@ from stable_baselines3.common.logger import Logger  # noqa: E402
 from stable_baselines3.common.vec_env import VecNormalize  # noqa: E402
 
 # The RL Baselines3 Zoo's hyperparameters (hyperparams/ppo.yml and sac.yml, MuJoCo section).
-# PPO: the Zoo's tuned entries for HalfCheetah, Hopper and Humanoid; the Ant has only the Zoo's
-# MuJoCo defaults (SB3's PPO defaults with normalisation). All PPO entries normalise
-# observations and rewards (VecNormalize) with one env. SAC: SB3's defaults with 10,000 random
-# steps first (the Zoo's MuJoCo entries).
+# PPO: the Zoo's tuned entries for HalfCheetah, Hopper, Walker2d (SB3's default network) and
+# Humanoid; the Ant has only the Zoo's MuJoCo defaults (SB3's PPO defaults with normalisation).
+# All PPO entries normalise observations and rewards (VecNormalize) with one env. SAC: SB3's
+# defaults with 10,000 random steps first (the Zoo's MuJoCo entries).
 _TUNED_PPO_NET = {"log_std_init": -2, "ortho_init": False, "activation_fn": "relu", "net_arch": [256, 256]}
 ZOO = {
     "ppo": {
@@ -55,9 +55,13 @@ ZOO = {
         "Humanoid": {"batch_size": 256, "n_steps": 512, "gamma": 0.95, "learning_rate": 3.56987e-05,
                      "ent_coef": 0.00238306, "clip_range": 0.3, "n_epochs": 5, "gae_lambda": 0.9,
                      "max_grad_norm": 2, "vf_coef": 0.431892, "policy_kwargs": _TUNED_PPO_NET},
+        "Walker2d": {"batch_size": 32, "n_steps": 512, "gamma": 0.99, "learning_rate": 5.05041e-05,
+                     "ent_coef": 0.000585045, "clip_range": 0.1, "n_epochs": 20, "gae_lambda": 0.95,
+                     "max_grad_norm": 1, "vf_coef": 0.871923},
         "Ant": {},
     },
-    "sac": {name: {"learning_starts": 10_000} for name in ("HalfCheetah", "Hopper", "Humanoid", "Ant")},
+    "sac": {name: {"learning_starts": 10_000}
+            for name in ("HalfCheetah", "Hopper", "Walker2d", "Humanoid", "Ant")},
 }  # fmt: skip
 
 

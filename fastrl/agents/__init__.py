@@ -8,11 +8,12 @@ per chunk, a traced argument); a checkpoint is the state.
 
 from __future__ import annotations
 
-from fastrl.agents import apg, es, ppo, sac
+from fastrl.agents import apg, es, fasttd3, ppo, sac
 from fastrl.agents.apg import APGConfig, UnsuitableEnvError, make_apg
 from fastrl.agents.base import Algorithm, Learner, PolicyParams, SplitsOverDevices
 from fastrl.agents.es import ESConfig, make_es
 from fastrl.agents.evaluation import make_evaluator, make_rollout
+from fastrl.agents.fasttd3 import FastTD3Config, make_fasttd3
 from fastrl.agents.networks import NetworkConfig
 from fastrl.agents.ppo import PPOConfig, make_ppo
 from fastrl.agents.sac import SACConfig, make_sac
@@ -22,6 +23,7 @@ ALGORITHMS = {
         PPOConfig, make_ppo, ppo.env_steps_per_update, splits_over_devices=True, privileged_critic=True
     ),
     "sac": Algorithm(SACConfig, make_sac, sac.env_steps_per_update),
+    "fasttd3": Algorithm(FastTD3Config, make_fasttd3, fasttd3.env_steps_per_update, privileged_critic=True),
     "es": Algorithm(ESConfig, make_es, es.env_steps_per_update),
     "apg": Algorithm(APGConfig, make_apg, apg.env_steps_per_update),
 }
@@ -79,10 +81,12 @@ __all__ = [
     "splits_evenly",
     "APGConfig",
     "ESConfig",
+    "FastTD3Config",
     "SACConfig",
     "UnsuitableEnvError",
     "make_apg",
     "make_es",
+    "make_fasttd3",
     "make_sac",
     "Learner",
     "NetworkConfig",
