@@ -53,16 +53,21 @@ COLORS = {"fastrl_ppo": "tab:blue", "fastrl_sac": "tab:purple", "fastrl_fasttd3"
           "sb3_ppo": "tab:orange", "sb3_sac": "tab:green"}  # fmt: skip
 
 
+# A snapshot due at a budget is saved just after it (SB3 saves at the first step past it): one
+# saved within this many seconds after a budget counts for it, on either side.
+SLACK = 2.0
+
+
 def return_at(snaps: list[dict], seconds: float) -> float | None:
-    """The mean return of the last snapshot saved at or before ``seconds`` (None: none was)."""
-    before = [s for s in snaps if s["seconds"] <= seconds]
+    """The mean return of the last snapshot saved by ``seconds`` (None: none was)."""
+    before = [s for s in snaps if s["seconds"] <= seconds + SLACK]
     return float(np.mean(before[-1]["returns"])) if before else None
 
 
 def time_to(snaps: list[dict], target: float, horizon: float) -> float | None:
     """Seconds to the first snapshot (within ``horizon``) from which every later one within it
     scores at least ``target``: a lucky snapshot the learner falls back from does not count."""
-    kept = [s for s in snaps if s["seconds"] <= horizon]
+    kept = [s for s in snaps if s["seconds"] <= horizon + SLACK]
     means = [float(np.mean(s["returns"])) for s in kept]
     stays = [i for i in range(len(means)) if all(m >= target for m in means[i:])]
     return kept[stays[0]]["seconds"] if stays else None
@@ -117,7 +122,8 @@ def render(result: dict) -> str:
              "Each learner trains from launching its process (start-up and compiles included), one at a "
              f"time, with a snapshot every {result['every']:g} s; every snapshot is scored in "
              f"Gymnasium's own v5 env (MuJoCo C), {result['episodes']} episodes of the deterministic "
-             "policy. A return at a budget is the last snapshot saved by then, the median over seeds. "
+             f"policy. A return at a budget is the last snapshot saved by then ({SLACK:g} s of slack for "
+             "the save itself), the median over seeds. "
              "The cells' own runs are listed at the end.",
              "", "## Best learner of each side", "",
              "| env | budget | fastrl's best | SB3's best | fastrl − SB3 |",

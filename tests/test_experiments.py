@@ -325,6 +325,8 @@ def test_sb3_budgets_medians_best_learners_and_time_to_the_target():
 def test_sb3_budgets_quick_keeps_its_cells(tmp_path):
     """FastTD3 and SB3 PPO each train on a wall-clock budget, every snapshot scored in Gymnasium's
     Hopper-v5; a second command skips the cells the record already holds."""
+    from experiments.sb3_budgets import SLACK
+
     result = _run_quick("sb3_budgets", tmp_path, "sb3_budgets_quick.json")
     runs = result["runs"]["hopper"]
     assert list(runs) == ["fastrl_fasttd3", "sb3_ppo"]
@@ -333,10 +335,10 @@ def test_sb3_budgets_quick_keeps_its_cells(tmp_path):
         snaps = seeds["0"]
         assert snaps and all(len(s["returns"]) == 2 and s["env_steps"] > 0 for s in snaps), learner
         assert [s["seconds"] for s in snaps] == sorted(s["seconds"] for s in snaps)
-        assert any(s["seconds"] <= 40 for s in snaps), learner  # a snapshot within the budget
+        assert any(s["seconds"] <= 40 + SLACK for s in snaps), learner  # a snapshot within the budget
     summary = result["summary"]["hopper"]
     assert summary["budgets"]["40"]["medians"]["sb3_ppo"] == pytest.approx(
-        np.mean([s for s in runs["sb3_ppo"]["0"] if s["seconds"] <= 40][-1]["returns"])
+        np.mean([s for s in runs["sb3_ppo"]["0"] if s["seconds"] <= 40 + SLACK][-1]["returns"])
     )
     assert len(result["log"]) == 2
     md = (tmp_path / "sb3_budgets_quick.md").read_text()
