@@ -157,12 +157,9 @@ def render(result: dict) -> str:
 
 def plot(result: dict):
     """Gymnasium return against wall-clock seconds, one panel per env, one line per seed."""
-    plt = results.pyplot()
     envs = list(result["runs"])
-    fig, axes = plt.subplots(
-        1, len(envs), figsize=(4 * len(envs), 3.4), constrained_layout=True, squeeze=False
-    )
-    for ax, env in zip(axes[0], envs, strict=True):
+    fig, axes = sb3_compare.env_panels(envs)
+    for ax, env in zip(axes, envs, strict=True):
         for learner, seeds in result["runs"][env].items():
             for i, snaps in enumerate(seeds.values()):
                 label = LABELS[learner] if i == 0 else None
@@ -172,8 +169,7 @@ def plot(result: dict):
             ax.axvline(budget / 60, color="0.8", lw=0.8, zorder=0)
         ax.set_title(env, fontsize=10)
         ax.set_xlabel("wall-clock minutes from launch")
-    axes[0][0].set_ylabel("return in Gymnasium v5")
-    axes[0][0].legend(fontsize=7)
+    axes[0].legend(fontsize=7)
     return fig
 
 

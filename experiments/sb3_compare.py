@@ -194,15 +194,23 @@ def render(result: dict) -> str:
     return "\n".join(lines)
 
 
-def plot(result: dict):
-    """Gymnasium return against wall-clock seconds, one panel per env."""
+def env_panels(envs: list[str]):
+    """A figure of one panel per env in a row: (figure, the row of axes), the first axis labelled
+    with Gymnasium's return."""
     plt = results.pyplot()
-    envs = list(result["runs"])
     fig, axes = plt.subplots(
         1, len(envs), figsize=(4 * len(envs), 3.4), constrained_layout=True, squeeze=False
     )
+    axes[0][0].set_ylabel("return in Gymnasium v5")
+    return fig, axes[0]
+
+
+def plot(result: dict):
+    """Gymnasium return against wall-clock seconds, one panel per env."""
+    envs = list(result["runs"])
+    fig, axes = env_panels(envs)
     colors = {"fastrl_ppo": "tab:blue", "sb3_ppo": "tab:orange", "sb3_sac": "tab:green"}
-    for ax, env in zip(axes[0], envs, strict=True):
+    for ax, env in zip(axes, envs, strict=True):
         for learner, snaps in result["runs"][env].items():
             t = [s["seconds"] for s in snaps]
             ax.plot(
@@ -214,8 +222,7 @@ def plot(result: dict):
             )
         ax.set_title(env, fontsize=10)
         ax.set_xlabel("wall-clock s from launch")
-    axes[0][0].set_ylabel("return in Gymnasium v5")
-    axes[0][0].legend(fontsize=7)
+    axes[0].legend(fontsize=7)
     return fig
 
 

@@ -8,7 +8,7 @@ per chunk, a traced argument); a checkpoint is the state.
 
 from __future__ import annotations
 
-from fastrl.agents import apg, es, fasttd3, ppo, sac
+from fastrl.agents import apg, es, off_policy, ppo
 from fastrl.agents.apg import APGConfig, UnsuitableEnvError, make_apg
 from fastrl.agents.base import Algorithm, Learner, PolicyParams, SplitsOverDevices
 from fastrl.agents.es import ESConfig, make_es
@@ -22,8 +22,10 @@ ALGORITHMS = {
     "ppo": Algorithm(
         PPOConfig, make_ppo, ppo.env_steps_per_update, splits_over_devices=True, privileged_critic=True
     ),
-    "sac": Algorithm(SACConfig, make_sac, sac.env_steps_per_update),
-    "fasttd3": Algorithm(FastTD3Config, make_fasttd3, fasttd3.env_steps_per_update, privileged_critic=True),
+    "sac": Algorithm(SACConfig, make_sac, off_policy.env_steps_per_update),
+    "fasttd3": Algorithm(
+        FastTD3Config, make_fasttd3, off_policy.env_steps_per_update, privileged_critic=True
+    ),
     "es": Algorithm(ESConfig, make_es, es.env_steps_per_update),
     "apg": Algorithm(APGConfig, make_apg, apg.env_steps_per_update),
 }

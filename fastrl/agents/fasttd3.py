@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from fastrl.agents import normalizer, replay
+from fastrl.agents import normalizer, off_policy, replay
 from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig
 from fastrl.envs.base import Env
@@ -221,17 +221,11 @@ class _Parts(NamedTuple):
     policy_obs: int
 
 
-def env_steps_per_update(config: FastTD3Config, env: Env) -> int:
-    """Env steps one update takes: ``config.env_steps_per_update`` steps of each of ``num_envs`` envs."""
-    del env
-    return config.num_envs * config.env_steps_per_update
-
-
 def make_fasttd3(config: FastTD3Config, env: Env, network: NetworkConfig, total_updates: int = 1) -> Learner:
     """Builds FastTD3 for ``env`` (``total_updates`` is unused: the step sizes are constant)."""
     del total_updates
     p = _parts(config, env, network)
-    n_new = env_steps_per_update(config, env)
+    n_new = off_policy.env_steps_per_update(config, env)
     collect, grad_step = _make_collect(config, p), _make_grad_step(config, p)
 
     def update(state: FastTD3State) -> tuple[FastTD3State, dict]:
@@ -248,17 +242,13 @@ def make_fasttd3(config: FastTD3Config, env: Env, network: NetworkConfig, total_
         (params, opt_state, _, _), info = jax.lax.scan(
             grad_step, (state.params, state.opt_state, stats, buf), (keys, counts)
         )
-        # No learning until the random warm-up has filled the buffer (masked, branch-free).
         ready = (env_steps >= config.learning_starts) & (buf.size >= config.n_step)
-        keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(ready, a, b), new, old)  # noqa: E731
-        params, opt_state = keep(params, state.params), keep(opt_state, state.opt_state)
-        done = done.astype(jnp.float32)
+        params, opt_state = off_policy.unless_warming_up(
+            ready, (params, opt_state), (state.params, state.opt_state)
+        )
         actor_steps = info.pop("actor_steps")
-        metrics = {f"loss/{k}": jnp.mean(v) for k, v in info.items()}
+        metrics = off_policy.update_metrics(info, done, ep_ret, steps["reward"])
         metrics["loss/actor"] = jnp.sum(info["actor"]) / jnp.maximum(jnp.sum(actor_steps), 1.0)
-        metrics["train/episode_return_sum"] = jnp.sum(ep_ret * done)
-        metrics["train/episodes"] = jnp.sum(done)
-        metrics["train/reward_mean"] = jnp.mean(steps["reward"])
         metrics["train/buffer_size"] = (buf.size * config.num_envs).astype(jnp.float32)
         new = FastTD3State(
             params=params, opt_state=opt_state, obs_stats=stats, buffer=buf, env_state=env_state,
@@ -279,17 +269,15 @@ def make_fasttd3(config: FastTD3Config, env: Env, network: NetworkConfig, total_
 
 def _parts(config: FastTD3Config, env: Env, network: NetworkConfig) -> _Parts:
     """Networks, optimisers and env functions."""
-    low, high = (jnp.asarray(b) for b in env.action_bounds)
 
     def optimizer(learning_rate):
-        clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
-        return optax.chain(*clip, optax.adamw(learning_rate, weight_decay=config.weight_decay))
+        return off_policy.optimizer(learning_rate, config.max_grad_norm, config.weight_decay)
 
     atoms = jnp.linspace(config.v_min, config.v_max, config.num_atoms, dtype=jnp.float32)
     return _Parts(
         policy_net=MLP(network.policy_hidden, env.action_size, network.activation),
         q_net=CategoricalCriticPair(network.value_hidden, network.activation, atoms),
-        to_env=lambda u: (high + low) / 2 + (high - low) / 2 * u,
+        to_env=off_policy.to_env_bounds(env),
         norm=observation_normalizer(config.normalize_observations),
         opt={"policy": optimizer(config.actor_learning_rate), "q": optimizer(config.critic_learning_rate)},
         env_reset=jax.vmap(env.reset),

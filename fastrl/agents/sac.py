@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from fastrl.agents import normalizer, replay
+from fastrl.agents import normalizer, off_policy, replay
 from fastrl.agents.base import Learner, PolicyParams, make_act, observation_normalizer
 from fastrl.agents.networks import MLP, NetworkConfig, TanhGaussian
 from fastrl.envs.base import Env
@@ -138,17 +138,11 @@ class _Parts(NamedTuple):
     target_entropy: float
 
 
-def env_steps_per_update(config: SACConfig, env: Env) -> int:
-    """Env steps one update takes: ``config.env_steps_per_update`` steps of each of ``num_envs`` envs."""
-    del env
-    return config.num_envs * config.env_steps_per_update
-
-
 def make_sac(config: SACConfig, env: Env, network: NetworkConfig, total_updates: int = 1) -> Learner:
     """Builds SAC for ``env`` (``total_updates`` is unused: SAC keeps a constant step size)."""
     del total_updates
     p = _parts(config, env, network)
-    n_new = env_steps_per_update(config, env)
+    n_new = off_policy.env_steps_per_update(config, env)
     collect, grad_step = _make_collect(config, p), _make_grad_step(config, p)
 
     def update(state: SACState) -> tuple[SACState, dict]:
@@ -166,15 +160,11 @@ def make_sac(config: SACConfig, env: Env, network: NetworkConfig, total_updates:
         (params, opt_state, _, _), info = jax.lax.scan(
             grad_step, (state.params, state.opt_state, stats, buf), keys
         )
-        # No learning until the random warm-up has filled the buffer (masked, branch-free).
         ready = (env_steps >= config.learning_starts) & (buf.size >= config.batch_size)
-        keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(ready, a, b), new, old)  # noqa: E731
-        params, opt_state = keep(params, state.params), keep(opt_state, state.opt_state)
-        done = done.astype(jnp.float32)
-        metrics = {f"loss/{k}": jnp.mean(v) for k, v in info.items()}
-        metrics["train/episode_return_sum"] = jnp.sum(ep_ret * done)
-        metrics["train/episodes"] = jnp.sum(done)
-        metrics["train/reward_mean"] = jnp.mean(tr["reward"])
+        params, opt_state = off_policy.unless_warming_up(
+            ready, (params, opt_state), (state.params, state.opt_state)
+        )
+        metrics = off_policy.update_metrics(info, done, ep_ret, tr["reward"])
         metrics["train/buffer_size"] = buf.size.astype(jnp.float32)
         new = SACState(
             params=params, opt_state=opt_state, obs_stats=stats, buffer=buf, env_state=env_state, rng=rng,
@@ -196,17 +186,15 @@ def make_sac(config: SACConfig, env: Env, network: NetworkConfig, total_updates:
 def _parts(config: SACConfig, env: Env, network: NetworkConfig) -> _Parts:
     """Networks, distribution, optimisers and env functions."""
     nu = env.action_size
-    low, high = (jnp.asarray(b) for b in env.action_bounds)
 
     def optimizer():
-        clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
-        return optax.chain(*clip, optax.adam(config.learning_rate))
+        return off_policy.optimizer(config.learning_rate, config.max_grad_norm)
 
     return _Parts(
         policy_net=MLP(network.policy_hidden, 2 * nu, network.activation),
         q_net=_QPair(network.value_hidden, network.activation),
         dist=TanhGaussian(jnp.full(nu, -1.0), jnp.full(nu, 1.0)),  # actions in [-1, 1], then scaled
-        to_env=lambda u: (high + low) / 2 + (high - low) / 2 * u,
+        to_env=off_policy.to_env_bounds(env),
         norm=observation_normalizer(config.normalize_observations),
         opt={"policy": optimizer(), "q": optimizer(), "alpha": optax.adam(config.learning_rate)},
         env_reset=jax.vmap(env.reset),

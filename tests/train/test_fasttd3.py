@@ -1,5 +1,5 @@
 """FastTD3: its distributional projection and n-step replay against plain-Python references,
-exact resume, and the privileged critic."""
+and the privileged critic (its exact resume: tests/train/test_learners.py)."""
 
 import jax
 import jax.numpy as jnp
@@ -10,7 +10,6 @@ from fastrl import agents
 from fastrl.agents import replay
 from fastrl.agents.fasttd3 import project
 
-from .test_front_door import _weights_of, compose_cfg, run
 from .test_learners import _PrivilegedPendulum
 
 
@@ -98,25 +97,6 @@ def test_n_step_samples_match_a_hand_sum_and_stop_at_episode_ends():
         np.testing.assert_array_equal(np.asarray(batch["action"][i]), steps["action"][t, e])
     # Every start whose n steps are stored is drawn, and no other.
     assert starts == {(t, e) for t in range(written - length, written - n + 1) for e in range(num_envs)}
-
-
-def test_fasttd3_resumes_exactly(tmp_path):
-    base = [
-        "algo=fasttd3",
-        "env=inverted_pendulum",
-        "debug=quick",
-        "logger=quiet",
-        "train.updates_per_chunk=1",
-    ]
-    base.append("train.total_env_steps=128")  # 8 updates of 16 envs, learning from the 5th
-    full = run(compose_cfg([*base, f"run_dir={tmp_path}/full"]))
-    part = run(compose_cfg([*base, f"run_dir={tmp_path}/split", "train.stop_after_chunks=5"]))
-    assert part["status"] == "stopped" and full["chunks"] > 5
-    done = run(compose_cfg([*base, f"run_dir={tmp_path}/x", f"resume={tmp_path}/split"]))
-    assert done["chunks"] == full["chunks"]
-    a, b = _weights_of(tmp_path / "full"), _weights_of(tmp_path / "split")
-    for x, y in zip(a, b, strict=True):
-        np.testing.assert_array_equal(x, y)
 
 
 def test_fasttd3_reads_privileged_state_in_its_critics_only():

@@ -1,4 +1,4 @@
-"""SAC, ES and APG: unit oracles (replay buffer, ES gradient, APG gradient) and exact resume."""
+"""SAC, FastTD3, ES and APG: unit oracles (replay buffer, ES gradient, APG gradient) and exact resume."""
 
 import jax
 import jax.numpy as jnp
@@ -94,6 +94,7 @@ def test_apg_refuses_envs_with_useless_gradients():
     "algo,env_name",
     [
         ("sac", "inverted_pendulum"),  # the replay buffer must come back exactly
+        ("fasttd3", "inverted_pendulum"),  # its trajectory ring and exploration scales too
         # ES and APG resume through the same runner and checkpoint code; slow to keep CI short.
         pytest.param("es", "inverted_pendulum", marks=pytest.mark.slow),
         pytest.param("apg", "inverted_pendulum", marks=pytest.mark.slow),
@@ -101,8 +102,9 @@ def test_apg_refuses_envs_with_useless_gradients():
 )
 def test_exact_resume(tmp_path, algo, env_name):
     base = [f"algo={algo}", f"env={env_name}", "debug=quick", "logger=quiet", "train.updates_per_chunk=1"]
-    # 4 updates each: sac 16 envs x 1 step, es 8 members x 20 steps, apg 8 envs x 8 steps.
-    base.append(f"train.total_env_steps={ {'sac': 64, 'es': 640, 'apg': 256}[algo] }")
+    # 4 updates each: sac 16 envs x 1 step, es 8 members x 20 steps, apg 8 envs x 8 steps; fasttd3
+    # 8 of 16 envs, learning from the 5th (after the resume).
+    base.append(f"train.total_env_steps={ {'sac': 64, 'fasttd3': 128, 'es': 640, 'apg': 256}[algo] }")
     full = run(compose_cfg([*base, f"run_dir={tmp_path}/full"]))
     part = run(compose_cfg([*base, f"run_dir={tmp_path}/split", "train.stop_after_chunks=2"]))
     assert part["status"] == "stopped" and full["chunks"] > 2
