@@ -46,14 +46,24 @@ from fastrl.physics.types import Data, Model
 MINVAL = 1e-15  # mjMINVAL
 
 
+def _each(onehot: jax.Array, per_island: jax.Array) -> jax.Array:
+    """Each row's (or dof's) island's value, for a (k, r, ...) island map."""
+    return jnp.tensordot(per_island, onehot, axes=1)
+
+
 class _Islands(typing.NamedTuple):
-    dof: jax.Array  # (nv, k) one-hot: each constrained dof's island
-    rows: tuple[jax.Array, ...]  # per row group of Rows.j (cones: per block), (r, k) one-hot
+    """Each island's dofs and rows, as one-hot maps with the islands first: under ``vmap`` their
+    products with per-row (or per-dof) vectors are batched dots that contract the maps' minor
+    axis, which XLA:CPU runs several times faster than with the rows first (Leap's Newton solve at
+    batch 1024, float32: 100 -> 47 us/env)."""
+
+    dof: jax.Array  # (k, nv) one-hot: each constrained dof's island
+    rows: tuple[jax.Array, ...]  # per row group of Rows.j (cones: per block), (k, r) one-hot
     scale: jax.Array  # (k,) 1 / island inertia; 0 where no island
 
     def per(self, x: jax.Array) -> jax.Array:
         """Sum of a per-dof quantity over each island."""
-        return x @ self.dof
+        return self.dof @ x
 
     def norm(self, x: jax.Array) -> jax.Array:
         return jnp.sqrt(self.per(x * x))
@@ -78,20 +88,21 @@ def islands(m: Model, rows: Rows, qm: jax.Array) -> _Islands:
     touch, exist = _row_jacobians(rows, nv)
     incid = [(t.astype(dtype) @ tree > 0) & e[:, None] for t, e in zip(touch, exist, strict=True)]
     if m.disableflags & mujoco.mjtDisableBit.mjDSBL_ISLAND:  # one island of every dof, MuJoCo's global scale
-        dof = jnp.ones((nv, 1), dtype)
-        row_isl = tuple(jnp.any(b, axis=1, keepdims=True).astype(dtype) for b in incid)
+        dof = jnp.ones((1, nv), dtype)
+        row_isl = tuple(jnp.any(b, axis=1, keepdims=True).astype(dtype).T for b in incid)
         return _Islands(dof, row_isl, jnp.full((1,), 1.0 / (m.meaninertia * max(1, nv)), dtype))
-    b = jnp.concatenate(incid).astype(dtype)
-    adj = (b.T @ b) > 0  # trees sharing a row
+    # boolean products as fused reductions (under vmap a ``@`` is one tiny product per env)
+    b = jnp.concatenate(incid)
+    adj = jnp.any(b[:, :, None] & b[:, None, :], axis=0)  # trees sharing a row
     constrained = jnp.diagonal(adj)
     reach = adj | jnp.eye(k, dtype=bool)
     for _ in range(int(np.ceil(np.log2(max(k, 2))))):
-        reach = (reach.astype(dtype) @ reach.astype(dtype)) > 0
+        reach = jnp.any(reach[:, :, None] & reach[None, :, :], axis=1)
     label = jnp.argmax(reach, axis=1)  # an island's id: its lowest tree
-    tree_isl = jax.nn.one_hot(label, k, dtype=dtype) * constrained[:, None]
-    dof = jnp.asarray(tree, dtype) @ tree_isl
-    row_isl = tuple(((x.astype(dtype) @ tree_isl) > 0).astype(dtype) for x in incid)
-    inertia = jnp.diagonal(qm) @ dof
+    tree_isl = (label[:, None] == np.arange(k)) & constrained[:, None]  # (tree, island)
+    dof = jnp.any((tree.T > 0)[:, None, :] & tree_isl[:, :, None], axis=0).astype(dtype)
+    row_isl = tuple(jnp.any(x.T[:, None, :] & tree_isl[:, :, None], axis=0).astype(dtype) for x in incid)
+    inertia = dof @ jnp.diagonal(qm)
     scale = jnp.where(inertia > 0, 1.0 / jnp.where(inertia > 0, inertia, 1.0), 0.0)
     return _Islands(dof, row_isl, scale)
 
@@ -130,13 +141,13 @@ class _Line(typing.NamedTuple):
                  _inequality(*con, rows.dd, alpha), _equality(*eq, rows.eq_D, alpha)]  # fmt: skip
         parts += [_cone(c, *x, alpha) for c, x in zip(rows.cones, cones, strict=True)]
         for (c, s, u), (_, _, onehot) in zip(parts, (fr, lim, con, eq, *cones), strict=True):
-            cost, d0, d1 = cost + c @ onehot, d0 + s @ onehot, d1 + u @ onehot
+            cost, d0, d1 = cost + onehot @ c, d0 + onehot @ s, d1 + onehot @ u
         return cost, d0, jnp.where(d1 <= 0, MINVAL, d1)
 
 
 def _friction(rows: Rows, start, v, onehot, alpha):
     """Friction-loss rows: Huber cost (quadratic within ``|x| < R f``, linear beyond)."""
-    x = start + (onehot @ alpha) * v
+    x = start + _each(onehot, alpha) * v
     f, dd = rows.fr_loss, rows.fr_D
     rf = f / jnp.where(dd > 0, dd, 1.0)
 
@@ -159,7 +170,7 @@ def _friction(rows: Rows, start, v, onehot, alpha):
 
 def _inequality(start, v, onehot, dd, alpha):
     """Limit and pyramidal contact rows: ``D x^2 / 2`` while ``x < 0``."""
-    a = onehot @ alpha
+    a = _each(onehot, alpha)
     x = start + a * v
     q0, q1, q2 = 0.5 * dd * start * start, v * dd * start, 0.5 * v * dd * v
     cost0 = jnp.where(start < 0, q0, 0.0)
@@ -169,7 +180,7 @@ def _inequality(start, v, onehot, dd, alpha):
 
 
 def _equality(start, v, onehot, dd, alpha):
-    a = onehot @ alpha
+    a = _each(onehot, alpha)
     q1, q2 = v * dd * start, 0.5 * v * dd * v
     return a * q1 + a * a * q2, 2 * a * q2 + q1, 2 * q2
 
@@ -183,7 +194,7 @@ def _cone_zone(n, tsqr, mu):
 
 def _cone(c, start, v, onehot, alpha):
     """Elliptic-cone blocks (ellipticCostDif and PrimalEval's cone branch)."""
-    a = onehot @ alpha
+    a = _each(onehot, alpha)
     mu, dd = c.mu, c.dd
     q0 = 0.5 * jnp.sum(dd * start * start, -1)
     q1 = jnp.sum(v * dd * start, -1)
@@ -409,7 +420,7 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
     islands have."""
     isl = islands(m, rows, d.qM)
     tol = m.solver_tolerance
-    constrained = jnp.any(isl.dof > 0, axis=1)
+    constrained = jnp.any(isl.dof > 0, axis=0)
     warm = d.qacc_warmstart
     a = jnp.where(primal_cost(rows, d, warm) > primal_cost(rows, d, d.qacc_smooth), d.qacc_smooth, warm)
     a = jnp.where(constrained, a, d.qacc_smooth)
@@ -426,14 +437,14 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
 
     def step(carry):
         k, a, res, grad, hess, mgrad, stopped = carry
-        search = -mgrad * (isl.dof @ (~stopped).astype(a.dtype))
+        search = -mgrad * _each(isl.dof, (~stopped).astype(a.dtype))
         line = _line(rows, isl, d, a, res, search)
         alpha, improvement = line_search(line, search, ~stopped, tol * m.ls_tolerance, m.ls_iterations)
         moved = ~stopped & (alpha != 0)
         alpha = jnp.where(moved, alpha, 0.0)
-        a = a + (isl.dof @ alpha) * search
+        a = a + _each(isl.dof, alpha) * search
         js = rows.j(search)
-        res = tuple(r + (o @ alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
+        res = tuple(r + _each(o, alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
         grad, hess = gradient_hessian(rows, d, a, res, dense)
         mgrad = factor.solve_structured(structure, hess, grad)
         improvement = isl.scale * improvement
@@ -454,7 +465,7 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
 def _group_maps(isl: _Islands) -> tuple[jax.Array, ...]:
     """Per row group of ``Rows.j``, each row's island one-hot (cone blocks: per block row)."""
     fr, lim, con, eq, *cones = isl.rows
-    return (fr, lim, con, eq, *(c[:, None, :] for c in cones))
+    return (fr, lim, con, eq, *(c[:, :, None] for c in cones))
 
 
 def _line(rows: Rows, isl: _Islands, d: Data, a, res, search) -> _Line:

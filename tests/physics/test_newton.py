@@ -117,7 +117,7 @@ def test_islands_merge_on_contact(x64):
     for _ in range(150):
         mujoco.mj_step(mj, md)
         d = forward(m, physics.make_data(m, qpos=md.qpos.copy(), qvel=md.qvel.copy()))
-        ours = {tuple(np.flatnonzero(col)) for col in np.asarray(islands(d)).T if col.any()}
+        ours = {tuple(np.flatnonzero(row)) for row in np.asarray(islands(d)) if row.any()}
         mujoco.mj_forward(mj, md)
         assert ours == _mujoco_islands(md)
         seen |= ours
