@@ -198,8 +198,8 @@ def _problem(m: Model, d: Data) -> _Problem:
     """The rows, ``M^-1 J^T`` and this step's islands (``newton.islands``: each row's island)."""
     solve = jax.vmap(lambda v: factor.solve(m, d.qM, v))
     isl = newton.islands(m, solver.make_rows(m, d), d.qM)
-    row_island = (((d.efc_J != 0).astype(d.qM.dtype) @ isl.dof) > 0).astype(d.qM.dtype)
-    live = jnp.ones(isl.dof.shape[1], bool)
+    row_island = (((d.efc_J != 0).astype(d.qM.dtype) @ isl.dof.T) > 0).astype(d.qM.dtype)
+    live = jnp.ones(isl.dof.shape[0], bool)
     return _Problem(d.efc_J, solve(d.efc_J), d.efc_aref, row_island, isl.scale, live)
 
 
