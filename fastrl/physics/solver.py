@@ -43,9 +43,14 @@ from fastrl.physics.math import matvec
 from fastrl.physics.types import Data, Model
 
 LINESEARCH_ITERATIONS = 3
-# Up to this many contact rows H's contact part is an unrolled sum (fast for the standard envs'
-# 8-140 rows); beyond, a matrix product: an add chain thousands deep (a hand of 360 box-box
-# pairs has 5764 rows) compiled for minutes and crashed XLA with a segmentation fault.
+# Up to this many multiply-adds per env (rows x nv^2) the fixed-budget solver adds a row set to H
+# as an unrolled sum of outer products, beyond it as a matrix product. Measured, physics step at
+# batch 256, us/env, unrolled vs product: Hopper (32 rows x 6^2) 21.4 vs 29.8, Walker2d (32 x 9^2)
+# 25.8 vs 44.7, Ant (32 x 14^2) 51.9 vs 65.8; Humanoid (48 x 23^2) 208 vs 179, HumanoidStandup
+# (140 x 23^2) 469 vs 254. A long unrolled sum also compiles slowly: an add chain thousands deep
+# (a hand of 360 box-box pairs has 5764 rows) compiled for minutes and crashed XLA, hence the cap
+# on rows too.
+UNROLLED_HESSIAN_MAX_WORK = 8192
 UNROLLED_HESSIAN_MAX_ROWS = 256
 # With friction-loss rows (see ``_bracketed_newton``).
 BRACKETED_LINESEARCH_ITERATIONS = 10
@@ -263,25 +268,22 @@ def primal_cost(rows: Rows, d: Data, a: jax.Array) -> jax.Array:
     )
 
 
-def _add_outer(hess: jax.Array, left: jax.Array, right: jax.Array, dense: bool) -> jax.Array:
-    """``hess + left^T right`` for (r, nv) row sets. A ``dense`` Hessian (one that a dense
-    Cholesky factorises, ``factor.dense_solver``) takes the product as a dot where no loop boundary
-    separates it from the factorisation (``newton``): XLA materialises a dot's result, where it
-    fuses the unrolled sum into each of the column-wise factorisation's scalar reads and recomputes
-    it there (the Berkeley humanoid's Newton solve at batch 1024 on one core: 91 us/env with the
-    sum, 34 with the dot; with LAPACK's factor, a custom call that reads H once, 27 and 26)."""
-    if left.shape[0] <= UNROLLED_HESSIAN_MAX_ROWS and not dense:
-        # An unrolled sum of outer products: one fused elementwise loop, 4-5x faster on
-        # XLA:CPU than the equivalent batched dot (tiny per-environment GEMMs). It must not be
-        # fused into the factorisation's many scalar reads (each would recompute its sum: 5x
-        # slower overall), which is why H is carried across the Newton loop (see ``solve``).
-        return hess + sum(left[r][:, None] * right[r][None, :] for r in range(left.shape[0]))
-    return hess + left.T @ right
+def _add_outer(hess: jax.Array, left: jax.Array, right: jax.Array, product: bool) -> jax.Array:
+    """``hess + left^T right`` for (r, nv) row sets: a matrix product where ``product`` is set or
+    the rows are many (``UNROLLED_HESSIAN_MAX_WORK``), else an unrolled sum of outer products, one
+    fused elementwise loop that XLA:CPU runs faster than tiny per-environment GEMMs. Such a sum
+    must not meet a factorisation that XLA fuses it into (each of the factor's scalar reads would
+    recompute it): the fixed-budget solver carries H across its loop, and ``newton`` always asks
+    for the product (``gradient_hessian``)."""
+    rows, nv = left.shape
+    if product or rows > UNROLLED_HESSIAN_MAX_ROWS or rows * nv * nv > UNROLLED_HESSIAN_MAX_WORK:
+        return hess + left.T @ right
+    return hess + sum(left[r][:, None] * right[r][None, :] for r in range(rows))
 
 
-def gradient_hessian(rows: Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ...], dense: bool = False):
+def gradient_hessian(rows: Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ...], product: bool = False):
     """Gradient and Hessian of the cost at ``a``, given its row residuals ``res = J a - aref``;
-    ``dense`` when a dense Cholesky will factorise the Hessian (``_add_outer``).
+    ``product``: every row set's part of H as a matrix product (``_add_outer``).
 
     ``H = M + J^T diag(D * quadratic) J`` plus each cone block's ``J^T H_cone J``; friction-loss
     and limit rows (unit vectors) add to the diagonal.
@@ -294,14 +296,14 @@ def gradient_hessian(rows: Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ..
         g, h = c.grad_hess(r)
         cone_grads.append(g)
         hj = jnp.einsum("nij,njv->niv", h, c.jac)
-        hess = _add_outer(hess, c.jac.reshape(-1, c.jac.shape[-1]), hj.reshape(-1, c.jac.shape[-1]), dense)
+        hess = _add_outer(hess, c.jac.reshape(-1, c.jac.shape[-1]), hj.reshape(-1, c.jac.shape[-1]), product)
     grad = matvec(d.qM, a - d.qacc_smooth) + rows.jt(
         neg_fr, quad_lim * jl, quad * jc, rows.eq_D * jq, *cone_grads
     )
     if rows.eq_D.size:
-        hess = _add_outer(hess, rows.eq_jac * rows.eq_D[:, None], rows.eq_jac, dense)
+        hess = _add_outer(hess, rows.eq_jac * rows.eq_D[:, None], rows.eq_jac, product)
     if quad.size:
-        hess = _add_outer(hess, rows.jac * quad[:, None], rows.jac, dense)
+        hess = _add_outer(hess, rows.jac * quad[:, None], rows.jac, product)
     if rows.lim_dofs.size or rows.fr_dofs.size:
         nv = d.qM.shape[-1]
         diag = jnp.zeros(nv, hess.dtype).at[rows.lim_dofs].add(quad_lim)
@@ -309,7 +311,7 @@ def gradient_hessian(rows: Rows, d: Data, a: jax.Array, res: tuple[jax.Array, ..
         hess = hess + jnp.diag(diag)
     if rows.tf_jac.shape[0]:
         weight = (rows.fr_D * quad_fr)[rows.fr_dofs.size :]
-        hess = _add_outer(hess, rows.tf_jac * weight[:, None], rows.tf_jac, dense)
+        hess = _add_outer(hess, rows.tf_jac * weight[:, None], rows.tf_jac, product)
     return grad, hess
 
 
