@@ -5,13 +5,13 @@
 
 The Newton solver factorises a dense Hessian where a scene's dofs form one chain of 14 or more
 (``physics.factor.dense_solver``): Leap 22, Panda 15, the Berkeley humanoid 18, the Humanoid 23.
-On one device that is LAPACK's batched ``potrf``; on several, a program holding LAPACK's calls
-deadlocks (jaxlib's batch map waits on the intra-op pool that every device's program occupies),
-so the column-wise form in XLA's own ops runs there. One design for every device count would
-make the program independent of it; this times the candidates, each ``jax.jit(jax.vmap(f))`` of
-one factor plus one solve, float32, on random well-conditioned SPD matrices:
+On several CPU devices a program holding LAPACK's batched ``potrf`` deadlocks (jaxlib's batch
+map waits on the intra-op pool that every device's program occupies), so on CPU the column-wise
+form in XLA's own ops runs on every device count, and the program does not depend on it. This
+times the candidates, each ``jax.jit(jax.vmap(f))`` of one factor plus one solve, float32, on
+random well-conditioned SPD matrices:
 
-    lapack      ``lax.linalg.cholesky`` and ``cho_solve`` (one device only)
+    lapack      ``lax.linalg.cholesky`` and ``cho_solve`` (safe on one CPU device only)
     columns     fastrl's column-wise factor, blocked 2 x 2 above 16 rows, batch-major (as shipped)
     minor       the same column-wise factor with the batch as the minor axis: a ``custom_vmap``
                 rule moves the batch last, so each column step is a contiguous vector op over envs

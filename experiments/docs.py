@@ -388,6 +388,23 @@ def robot_ports_row() -> tuple[str, str, str, str]:
     )
 
 
+def robot_tasks_block() -> str:
+    """The robot tasks' full env step on 1 and 2 devices beside EnvPool's C++ ports and MuJoCo C's
+    physics-only rollout, from one run of ``experiments.robot_throughput``."""
+    rows = []
+    for r in sorted(load("robot_throughput")["rows"], key=lambda r: r["env"]):
+        two = (r.get("split_2_devices") or {}).get("control_steps_per_s")
+        port = (r.get("envpool_port") or {}).get("control_steps_per_s")
+        best = max(r["control_steps_per_s"], two or 0)
+        rollout = r["mujoco_rollout"]["control_steps_per_s"]
+        rows.append([r["env"], r["control_steps_per_s"], two or "–", port or "–", ratio(best, port),
+                     rollout, ratio(best, rollout), f"{r['compile_s']:.0f}"])  # fmt: skip
+    header = ["env", "fastrl, 1 device", "fastrl, 2 devices", "EnvPool's C++ port, 2 threads",
+              "best / EnvPool", "MuJoCo C rollout (physics only), 2 threads", "best / MuJoCo C",
+              "compile s"]  # fmt: skip
+    return table(header, rows) + source("robot_throughput")
+
+
 def _learning_rows() -> list[tuple[str, str, str, str]]:
     """Headline rows on learning: (measure, peer, fastrl's result, record stem)."""
     ttr = {t: time_to_return(t) for t in ("inverted_pendulum", "halfcheetah_sac", "hopper_sac", "ant")}
@@ -438,6 +455,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "first_minute": first_minute_block,
     "sb3": sb3_block,
     "robots": robot_block,
+    "robot_tasks": robot_tasks_block,
     "speed_accuracy": speed_accuracy_block,
     "reference_scores": reference_block,
     "scale": scale_block,

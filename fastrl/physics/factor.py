@@ -123,25 +123,30 @@ def solve_m(m: Model, factor: tuple[jax.Array, jax.Array], vec: jax.Array) -> ja
     return _solve_factored(ancestors(m), factor, vec)
 
 
-# From this many dofs a dense structure is factorised by a Cholesky (``dense_solver``: LAPACK's,
-# or a column-wise one with several devices) instead of the elementwise elimination, whose
-# ~nv^3/6 scalar steps each become a small loop over the batch. Measured at batch 1024 (factor +
-# solve, us/env, elementwise vs LAPACK): nv 6 0.16 vs 0.34, 9 0.29 vs 0.83, 11 0.48 vs 0.87, 14
-# 2.1 vs 0.95, 23 4.4 vs 1.8; and the elementwise form of nv 23 took 7 s to compile, LAPACK's
-# 0.4 s. Tree structures stay elementwise (the Ant's 14-dof Hessian: 0.56 vs 0.89 LAPACK).
+# From this many dofs a dense structure is factorised by a Cholesky (``dense_solver``) instead of
+# the elementwise elimination, whose ~nv^3/6 scalar steps each become a small loop over the batch.
+# Measured at batch 1024 (factor + solve, us/env, elementwise vs LAPACK): nv 6 0.16 vs 0.34, 9
+# 0.29 vs 0.83, 11 0.48 vs 0.87, 14 2.1 vs 0.95, 23 4.4 vs 1.8; and the elementwise form of nv 23
+# took 7 s to compile, LAPACK's 0.4 s. Tree structures stay elementwise (the Ant's 14-dof
+# Hessian: 0.56 vs 0.89 LAPACK).
 DENSE_CHOLESKY_MIN_DOFS = 14
 
 
 def dense_solver(anc: tuple[tuple[int, ...], ...]) -> str | None:
-    """How ``solve_structured`` factorises this structure: "lapack" (``lax.linalg.cholesky``) or
-    "columns" (``_dense_cholesky``) for a large dense one, None for the elementwise elimination.
-    LAPACK only in a process with one device: with several XLA:CPU devices a program holding its
-    calls deadlocked (seen on 2 devices, the Humanoid's PPO chunk: every thread idle), and the
-    column-wise form, blocked above ``COLUMN_CHOLESKY_MAX`` rows, runs there."""
+    """How ``solve_structured`` factorises this structure: None for the elementwise elimination;
+    for a large dense one, "columns" (``_dense_cholesky``, XLA's own ops) on CPU and "linalg"
+    (``lax.linalg.cholesky``: cuSOLVER on GPU) elsewhere.
+
+    The choice depends on the platform only, never on the number of devices, so a program is the
+    same on 1 device as on several. LAPACK's batched Cholesky is not used on CPU: a program
+    holding it deadlocked on several XLA:CPU devices (its kernel waits on the intra-op thread
+    pool that every device's program occupies; the Humanoid's PPO chunk on 2 devices), and on
+    one device it saves little (``experiments/results/dense_factor.md``: factor + solve at
+    batch 1024, us/env, LAPACK vs column-wise: n 15 0.74 vs 0.63, n 22 1.05 vs 1.41)."""
     dense = all(len(chain) == k for k, chain in enumerate(anc))
     if not (dense and len(anc) >= DENSE_CHOLESKY_MIN_DOFS):
         return None
-    return "lapack" if jax.device_count() == 1 else "columns"
+    return "columns" if jax.default_backend() == "cpu" else "linalg"
 
 
 # Above this many rows ``_dense_cholesky`` splits the matrix in 2 x 2 blocks (measured at batch
@@ -204,7 +209,7 @@ def _dense_cho_solve(c: jax.Array, vec: jax.Array) -> jax.Array:
 
 def _factor_any(anc, qm):
     which = dense_solver(anc)
-    if which == "lapack":
+    if which == "linalg":
         return jax.lax.linalg.cholesky(qm, symmetrize_input=False)
     if which == "columns":
         return _dense_cholesky(qm)
@@ -215,7 +220,7 @@ def _factor_any(anc, qm):
 
 def _solve_any(anc, factor, vec):
     which = dense_solver(anc)
-    if which == "lapack":
+    if which == "linalg":
         return jax.scipy.linalg.cho_solve((factor, True), vec)
     if which == "columns":
         return _dense_cho_solve(factor, vec)
