@@ -76,28 +76,10 @@ def plane_ellipsoid(p_pos, p_mat, p_size, e_pos, e_mat, e_size):
     return dist[None], (point - 0.5 * dist * normal)[None], normal[None], jnp.zeros((1, 3), normal.dtype)
 
 
-def _closest_on_triangle(p, a, b, c):
-    """The point of triangle abc nearest to p (the plane's projection if inside, else an edge's)."""
-    n = cross(b - a, c - a)
-    n = n / jnp.maximum(jnp.linalg.norm(n), 1e-30)
-    q = p - dot(p - a, n) * n
-    inside = (
-        (dot(cross(b - a, q - a), n) >= 0)
-        & (dot(cross(c - b, q - b), n) >= 0)
-        & (dot(cross(a - c, q - c), n) >= 0)
-    )
-    edges = []
-    for u, v in ((a, b), (b, c), (c, a)):
-        uv = v - u
-        t = jnp.clip(dot(q - u, uv) / jnp.maximum(dot(uv, uv), 1e-30), 0.0, 1.0)
-        edges.append(u + t * uv)
-    edges = jnp.stack(edges)
-    nearest = edges[jnp.argmin(jnp.sum((edges - p) ** 2, axis=-1))]
-    return jnp.where(inside, q, nearest)
-
-
-# The prism's 8 surface triangles (vertices 0-2 bottom, 3-5 top) and its 5 face planes.
-_PRISM_TRIANGLES = ((3, 4, 5), (0, 1, 2), (0, 1, 4), (0, 4, 3), (1, 2, 5), (1, 5, 4), (2, 0, 3), (2, 3, 5))
+# The prism's vertices: 0-2 the bottom triangle, 3-5 the top one, each above its bottom vertex;
+# its side faces, by bottom vertex pairs (the order of ``_prism_faces``), and its edges.
+_PRISM_SIDES = ((0, 1), (1, 2), (2, 0))
+_PRISM_EDGES = ((0, 1), (1, 2), (2, 0), (3, 4), (4, 5), (5, 3), (0, 3), (1, 4), (2, 5))
 
 
 def _prism_faces(prism):
@@ -114,17 +96,44 @@ def _prism_faces(prism):
     return normals / jnp.linalg.norm(normals, axis=-1, keepdims=True), jnp.stack(points)
 
 
+def _on_faces(prism, proj):
+    """Whether each face plane's nearest point ``proj`` (5, 3) lies on that face. The top and
+    bottom faces lie over the same triangle in x and y, and each side face is a vertical
+    trapezoid from the base up to the top triangle's edge."""
+    xy = prism[:3, :2]
+
+    def over_triangle(p):
+        e, w = jnp.roll(xy, -1, axis=0) - xy, p - xy  # each side's direction; p from its first vertex
+        s = e[:, 0] * w[:, 1] - e[:, 1] * w[:, 0]  # which side of each p lies
+        return jnp.all(s >= 0) | jnp.all(s <= 0)
+
+    on = [over_triangle(proj[0, :2]), over_triangle(proj[1, :2])]
+    for k, (i, j) in enumerate(_PRISM_SIDES):
+        e = xy[j] - xy[i]
+        t = dot(proj[2 + k, :2] - xy[i], e) / jnp.maximum(dot(e, e), 1e-30)
+        top = prism[3 + i, 2] + t * (prism[3 + j, 2] - prism[3 + i, 2])
+        z = proj[2 + k, 2]
+        on.append((t >= 0) & (t <= 1) & (z >= prism[i, 2]) & (z <= top))
+    return jnp.stack(on)
+
+
 def _sphere_prism(centre, radius, prism):
     """Contact of a sphere with a convex prism, as MuJoCo's GJK/EPA on the sphere's centre gives it:
-    ``(dist, pos, normal)`` with the normal from the prism to the sphere."""
-    tri = jnp.asarray(_PRISM_TRIANGLES)
-    closest = jax.vmap(_closest_on_triangle, (None, 0, 0, 0))(
-        centre, prism[tri[:, 0]], prism[tri[:, 1]], prism[tri[:, 2]]
-    )
-    q = closest[jnp.argmin(jnp.sum((closest - centre) ** 2, axis=-1))]
+    ``(dist, pos, normal)`` with the normal from the prism to the sphere.
+
+    Outside the prism the centre's closest point lies inside a face (the face plane's nearest
+    point, where that lies on the face) or on one of the 9 edges, so it is the nearest of those 14
+    candidates. Inside, the contact leaves through the nearest face."""
     normals, points = _prism_faces(prism)
     height = jnp.sum((centre - points) * normals, axis=-1)  # > 0 outside that face
     inside = jnp.all(height <= 0)
+    proj = centre - height[:, None] * normals
+    a = prism[np.array([e[0] for e in _PRISM_EDGES])]
+    ab = prism[np.array([e[1] for e in _PRISM_EDGES])] - a
+    t = jnp.clip(jnp.sum((centre - a) * ab, -1) / jnp.maximum(jnp.sum(ab * ab, -1), 1e-30), 0.0, 1.0)
+    candidates = jnp.concatenate([proj, a + t[:, None] * ab])
+    far = jnp.concatenate([~_on_faces(prism, proj), jnp.zeros(len(_PRISM_EDGES), bool)])
+    q = candidates[jnp.argmin(jnp.where(far, jnp.inf, jnp.sum((candidates - centre) ** 2, axis=-1)))]
     # Outside: along the centre's closest point. Inside: out through the nearest face.
     n_out, gap = _normalize(centre - q)
     face = jnp.argmax(height)
@@ -201,8 +210,6 @@ def hfield_sphere(
     return _hfield(h_pos, h_mat, local, local - radius, local + radius, collide, *field)
 
 
-# Edges of the prism (vertex pairs): bottom, top, vertical.
-_PRISM_EDGES = ((0, 1), (1, 2), (2, 0), (3, 4), (4, 5), (5, 3), (0, 3), (1, 4), (2, 5))
 _SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
 
 
