@@ -169,6 +169,44 @@ def _column_cholesky(qm: jax.Array) -> jax.Array:
     return jnp.stack(cols, axis=1)
 
 
+# Above this many rows the dense factor and solve run as loops (``_loop_cholesky``): unrolled,
+# the blocked factor of a 56-dof tree's Hessian was 118k optimised HLO instructions.
+UNROLLED_CHOLESKY_MAX = 32
+
+
+def _loop_cholesky(qm: jax.Array) -> jax.Array:
+    """``_column_cholesky`` as a loop over columns with masked rank-1 updates of the whole
+    matrix: a program of constant size for any number of rows."""
+    n = qm.shape[-1]
+    idx = jnp.arange(n)
+
+    def column(k, a):
+        pivot = jnp.sqrt(a[k, k])
+        col = jnp.where(idx > k, a[:, k] / pivot, jnp.where(idx == k, pivot, 0.0))
+        below = (idx > k).astype(a.dtype)
+        a = a - (col * below)[:, None] * (col * below)[None, :]
+        return a.at[:, k].set(col)
+
+    return jnp.tril(jax.lax.fori_loop(0, n, column, jnp.asarray(qm)))
+
+
+def _loop_cho_solve(c: jax.Array, vec: jax.Array) -> jax.Array:
+    """``_dense_cho_solve`` as two loops over rows (forward, then back substitution)."""
+    c, vec = jnp.asarray(c), jnp.asarray(vec)
+    n = c.shape[-1]
+
+    def forward(i, y):  # c y = vec; y is still zero from row i on
+        return y.at[i].set((vec[i] - c[i] @ y) / c[i, i])
+
+    y = jax.lax.fori_loop(0, n, forward, jnp.zeros_like(vec))
+
+    def back(t, x):  # c^T x = y; x is still zero up to row i
+        i = n - 1 - t
+        return x.at[i].set((y[i] - c[:, i] @ x) / c[i, i])
+
+    return jax.lax.fori_loop(0, n, back, jnp.zeros_like(vec))
+
+
 def _dense_cholesky(qm: jax.Array) -> jax.Array:
     """The lower Cholesky factor ``c`` of ``qm`` (``qm = c c^T``). Up to ``COLUMN_CHOLESKY_MAX``
     rows, column by column; above, by 2 x 2 blocks: the leading block's factor ``c11``, the block
@@ -176,6 +214,8 @@ def _dense_cholesky(qm: jax.Array) -> jax.Array:
     ``qm22 - l21 l21^T``, whose product is one matrix multiplication (a batched GEMM under vmap)
     in place of ``h`` rank-1 updates of that block."""
     n = qm.shape[-1]
+    if n > UNROLLED_CHOLESKY_MAX:
+        return _loop_cholesky(qm)
     if n <= COLUMN_CHOLESKY_MAX:
         return _column_cholesky(qm)
     h = n // 2
@@ -196,6 +236,8 @@ def _dense_cho_solve(c: jax.Array, vec: jax.Array) -> jax.Array:
     """``(c c^T)^-1 vec``: forward then back substitution, column-oriented (one unrolled axpy per
     row of ``c``)."""
     n = c.shape[-1]
+    if n > UNROLLED_CHOLESKY_MAX:
+        return _loop_cho_solve(c, vec)
     r, y = jnp.asarray(vec), []
     for i in range(n):  # c y = vec
         y.append(r[i] / c[i, i])
