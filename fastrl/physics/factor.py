@@ -182,10 +182,9 @@ def _loop_cholesky(qm: jax.Array) -> jax.Array:
 
     def column(k, a):
         pivot = jnp.sqrt(a[k, k])
-        col = jnp.where(idx > k, a[:, k] / pivot, jnp.where(idx == k, pivot, 0.0))
-        below = (idx > k).astype(a.dtype)
-        a = a - (col * below)[:, None] * (col * below)[None, :]
-        return a.at[:, k].set(col)
+        below = jnp.where(idx > k, a[:, k] / pivot, 0.0)  # the factor's column k under its pivot
+        a = a - below[:, None] * below[None, :]
+        return a.at[:, k].set(below.at[k].set(pivot))
 
     return jnp.tril(jax.lax.fori_loop(0, n, column, jnp.asarray(qm)))
 

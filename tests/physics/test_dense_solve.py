@@ -34,7 +34,8 @@ env = envs.make("humanoid")
 d = env.reset(jax.random.PRNGKey(0)).data
 text = jax.jit(lambda d: physics.step(env.model, d)).lower(d).as_text()
 chain = tuple(tuple(range(k - 1, -1, -1)) for k in range(23))
-print(jax.device_count(), factor.dense_solver(chain), "lapack" in text.lower(), hashlib.sha256(text.encode()).hexdigest())
+digest = hashlib.sha256(text.encode()).hexdigest()
+print(jax.device_count(), factor.dense_solver(chain), "lapack" in text.lower(), digest)
 """
 
 
