@@ -91,13 +91,14 @@ class Evaluation(Callback):
 
 def due(setup: Setup, progress: Progress, n: int) -> bool:
     """Whether the chunk just done (of ``n`` updates) ends with an evaluation: the last always
-    does; then every ``train.eval_every`` chunks and chunk 1, or, with eval_every None, the
-    chunks that cross one of ``train.num_evals`` evenly spaced points of the run."""
+    does; then every ``train.eval_every`` chunks and chunk 1 (none with eval_every 0), or, with
+    eval_every None, the chunks that cross one of ``train.num_evals`` evenly spaced points of the
+    run."""
     train, total = setup.cfg.train, setup.total_updates
     if progress.done(setup):
         return True
     if train.eval_every is not None:
         every = train.eval_every
-        return progress.chunk == 1 or bool(every and progress.chunk % every == 0)
+        return every > 0 and (progress.chunk == 1 or progress.chunk % every == 0)
     before, after = progress.updates - n, progress.updates
     return before * train.num_evals // total < after * train.num_evals // total

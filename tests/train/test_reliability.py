@@ -363,3 +363,20 @@ def test_a_checkpoint_restores_only_into_the_state_layout_it_was_saved_from(tmp_
             ckpt.restore(jax.eval_shape(lambda: other), config, 1)
     finally:
         ckpt.close()
+
+
+@pytest.mark.parametrize(("eval_every", "chunks"), [(0, []), (1, [1, 2, 3, 4, 5]), (2, [1, 2, 4])])
+def test_eval_every_evaluates_chunk_one_then_its_multiples_and_zero_only_at_the_end(eval_every, chunks):
+    from types import SimpleNamespace
+
+    from fastrl.training.evaluation import due
+    from fastrl.training.progress import Progress
+
+    train = SimpleNamespace(eval_every=eval_every, num_evals=10)
+    setup = SimpleNamespace(cfg=SimpleNamespace(train=train), total_updates=60)
+    progress, seen = Progress.fresh(1), []
+    for chunk in range(1, 7):
+        progress.advance(1.0, 10)
+        if due(setup, progress, 10):
+            seen.append(chunk)
+    assert seen == [*chunks, 6]  # the last chunk always evaluates
