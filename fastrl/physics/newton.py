@@ -473,8 +473,9 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
     decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
     stopped = ~real | (gap & gradient_ok) | (gradient_ok & (decrement < tol))
 
-    def step(carry):
-        k, a, res, grad, hess, mgrad, stopped = carry
+    def move(a, res, mgrad, stopped):
+        """One Newton step of every island that has not stopped: the new ``a`` and its
+        residuals, whether each island moved, and its cost improvement."""
         search = -mgrad * _each(isl.dof, (~stopped).astype(a.dtype))
         line = _line(rows, isl, d, a, res, search)
         alpha, improvement = line_search(line, search, ~stopped, tol * m.ls_tolerance, m.ls_iterations)
@@ -483,21 +484,35 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
         a = a + _each(isl.dof, alpha) * search
         js = rows.j(search)
         res = tuple(r + _each(o, alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
+        return a, res, moved, improvement
+
+    def step(carry):
+        """A step, then the Hessian and direction at the new point and the stopping tests."""
+        k, a, res, mgrad, stopped = carry
+        a, res, moved, improvement = move(a, res, mgrad, stopped)
         grad, hess = gradient_hessian(rows, d, a, res, product=True)
         mgrad = factor.solve_structured(structure, hess, grad)
         improvement = isl.scale * improvement
         gradient = isl.scale * isl.norm(grad)
         decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
         converged = ((improvement > 0) & (improvement < tol)) | (gradient < tol) | (decrement < tol)
-        return k + 1, a, res, grad, hess, mgrad, stopped | ~moved | converged
+        return k + 1, a, res, mgrad, stopped | ~moved | converged
 
-    def more(carry):
-        return (carry[0] < m.solver_iterations) & ~jnp.all(carry[-1])
+    def last(carry):
+        """The last allowed step: nothing follows it, so no Hessian after it."""
+        k, a, res, mgrad, stopped = carry
+        return k + 1, move(a, res, mgrad, stopped)[0], res, mgrad, stopped | True
 
-    carry = (0, a, res, grad, hess, mgrad, stopped)
+    def before(steps):
+        return lambda carry: (carry[0] < steps) & ~jnp.all(carry[-1])
+
+    # Leap's solve takes its 5 steps in most of a batch: 5 Hessians and factors instead of 6. The
+    # last step is a loop of at most one pass, so a batch whose islands have all stopped skips it.
+    carry = (0, a, res, mgrad, stopped)
     if m.solver_iterations == 1:  # MJX-tuned scenes: one step needs no loop (a loop costs ~25%)
-        return step(carry)[1]
-    return jax.lax.while_loop(more, step, carry)[1]
+        return last(carry)[1]
+    carry = jax.lax.while_loop(before(m.solver_iterations - 1), step, carry)
+    return jax.lax.while_loop(before(m.solver_iterations), last, carry)[1]
 
 
 def _group_maps(isl: _Islands) -> tuple[jax.Array, ...]:
