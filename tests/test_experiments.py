@@ -562,6 +562,18 @@ def test_stage_profile_times_every_stage_and_counts_what_touches(tmp_path):
     assert "| solver |" in (tmp_path / "stage_profile.md").read_text()
 
 
+def test_solver_trace_times_the_solve_operation_by_operation():
+    out = subprocess.run(
+        [sys.executable, "-m", "experiments.solver_trace", "humanoid_joystick", "--batch", "8",
+         "--warmup", "4", "--calls", "2", "--top", "5"],
+        check=True, cwd=ROOT, timeout=900, capture_output=True, text=True,
+    ).stdout  # fmt: skip
+    groups = out.split("runs per call | us/env | operations\n")[1].split("the 5 costliest")[0]
+    runs = {int(line.split("|")[0]): float(line.split("|")[1]) for line in groups.splitlines()}
+    assert 1 in runs and all(us >= 0 for us in runs.values()) and sum(runs.values()) > 0, out
+    assert max(runs) > 1, out  # the Newton steps and line-search passes run more than once per solve
+
+
 def test_device_split_times_the_step_on_each_device_count(tmp_path):
     subprocess.run(
         [sys.executable, "-m", "experiments.device_split", "hopper", "--batch", "8", "--devices", "1", "2",
