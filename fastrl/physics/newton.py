@@ -501,7 +501,8 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
     def last(carry):
         """The last allowed step: nothing follows it, so no Hessian after it."""
         k, a, res, mgrad, stopped = carry
-        return k + 1, move(a, res, mgrad, stopped)[0], res, mgrad, stopped | True
+        a, res, _, _ = move(a, res, mgrad, stopped)
+        return k + 1, a, res, mgrad, jnp.ones_like(stopped)
 
     def before(steps):
         return lambda carry: (carry[0] < steps) & ~jnp.all(carry[-1])
