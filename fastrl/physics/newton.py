@@ -6,22 +6,16 @@ iterate has converged the two agree with MuJoCo to rounding. A scene tuned for a
 converge in one step, and where MuJoCo stops then depends on the details of its algorithm. This
 module follows them (``mj_solNewton`` in MuJoCo's ``engine_solver.c``):
 
-- **Islands.** Trees (a world child with its descendants) that share a constraint row form an
-  island; each island is solved on its own, with its own scale ``1 / sum(diag M)``, line search
-  and termination. Dofs in no island take ``qacc_smooth``. Islands are found in the traced
-  program from which trees each existing row's Jacobian touches (a transitive closure over the
-  static trees), so every per-island quantity here is a vector over ``ntree`` possible islands.
+- **Islands** (``island.py``). Trees that share a constraint row form an island; each island is
+  solved on its own, with its own scale, line search and termination. Dofs in no island take
+  ``qacc_smooth``.
 - **Start and early exit.** The better of the warm start and ``qacc_smooth`` (ties keep the warm
   start); an island whose duality gap ``grad' M^-1 grad / 2`` and gradient are already below
   ``tolerance`` (scaled) takes no step, nor one whose Newton decrement is. After each step an
   island stops when its improvement, gradient or Newton decrement falls below ``tolerance``, or
   when its line search finds no improvement.
-- **Line search** (``PrimalSearch``): a Newton step on the line cost from 0, then one-sided
-  Newton steps until the slope changes sign, then a bracketed search over the two Newton
-  points and the midpoint, stopping at a slope below ``tolerance * ls_tolerance`` (scaled by
-  the search direction's norm) or after ``ls_iterations`` evaluations. It runs as a
-  ``while_loop`` with one evaluation of every island's line cost per pass, so a batch pays for
-  its slowest environment's evaluations only.
+- **Line search** (``linesearch.py``, ``PrimalSearch``): MuJoCo's Newton-then-bracket search
+  on each island's piecewise-quadratic line cost.
 
 The solve runs until every island has stopped, at most ``Model.solver_iterations`` Newton
 steps (MuJoCo's ``iterations``, see ``io.asset_solver_iterations``); under ``vmap`` a batch runs
@@ -35,387 +29,11 @@ import typing
 
 import jax
 import jax.numpy as jnp
-import mujoco
-import numpy as np
 
-from fastrl.physics import factor
-from fastrl.physics.math import matvec
+from fastrl.physics import factor, linesearch
+from fastrl.physics.island import Islands, each, islands
 from fastrl.physics.solver import Rows, finish, gradient_hessian, hessian_structure, make_rows, primal_cost
 from fastrl.physics.types import Data, Model
-
-MINVAL = 1e-15  # mjMINVAL
-
-
-def _each(onehot: jax.Array, per_island: jax.Array) -> jax.Array:
-    """Each row's (or dof's) island's value, for a (k, r, ...) island map."""
-    return jnp.tensordot(per_island, onehot, axes=1)
-
-
-class _Islands(typing.NamedTuple):
-    """Each island's dofs and rows, as one-hot maps with the islands first: under ``vmap`` their
-    products with per-row (or per-dof) vectors are batched dots that contract the maps' minor
-    axis, which XLA:CPU runs several times faster than with the rows first (Leap's Newton solve at
-    batch 1024, float32: 98 -> 49 us/env)."""
-
-    dof: jax.Array  # (k, nv) one-hot: each constrained dof's island
-    rows: tuple[jax.Array, ...]  # per row group of Rows.j (cones: per block), (k, r) one-hot
-    scale: jax.Array  # (k,) 1 / island inertia; 0 where no island
-
-    def per(self, x: jax.Array) -> jax.Array:
-        """Sum of a per-dof quantity over each island."""
-        return self.dof @ x
-
-    def norm(self, x: jax.Array) -> jax.Array:
-        return jnp.sqrt(self.per(x * x))
-
-
-def _row_jacobians(rows: Rows, nv: int):
-    """Each row group's |J| != 0 (r, nv) and whether each row exists (efc_D > 0)."""
-    eye = np.eye(nv, dtype=bool)
-    fr = jnp.concatenate([jnp.asarray(eye[rows.fr_dofs]), rows.tf_jac != 0])
-    touch = [fr, jnp.asarray(eye[rows.lim_dofs]), rows.jac != 0, rows.eq_jac != 0]
-    touch += [jnp.any(c.jac != 0, axis=1) for c in rows.cones]
-    exist = [jnp.ones(fr.shape[0], bool), rows.lim_D > 0, rows.dd > 0, rows.eq_D > 0]
-    exist += [c.dd[:, 0] > 0 for c in rows.cones]
-    return touch, exist
-
-
-def islands(m: Model, rows: Rows, qm: jax.Array) -> _Islands:
-    """The constraint islands of this step (mj_island), as one-hot maps over ``m.ntree`` slots."""
-    nv, k = qm.shape[-1], m.ntree
-    tree = np.eye(k)[m.dof_treeid]  # (nv, ntree)
-    dtype = qm.dtype
-    touch, exist = _row_jacobians(rows, nv)
-    incid = [(t.astype(dtype) @ tree > 0) & e[:, None] for t, e in zip(touch, exist, strict=True)]
-    if m.disableflags & mujoco.mjtDisableBit.mjDSBL_ISLAND:  # one island of every dof, MuJoCo's global scale
-        dof = jnp.ones((1, nv), dtype)
-        row_isl = tuple(jnp.any(b, axis=1, keepdims=True).astype(dtype).T for b in incid)
-        return _Islands(dof, row_isl, jnp.full((1,), 1.0 / (m.meaninertia * max(1, nv)), dtype))
-    # boolean products as fused reductions (under vmap a ``@`` is one tiny product per env)
-    b = jnp.concatenate(incid)
-    adj = jnp.any(b[:, :, None] & b[:, None, :], axis=0)  # trees sharing a row
-    constrained = jnp.diagonal(adj)
-    reach = adj | jnp.eye(k, dtype=bool)
-    for _ in range(int(np.ceil(np.log2(max(k, 2))))):
-        reach = jnp.any(reach[:, :, None] & reach[None, :, :], axis=1)
-    label = jnp.argmax(reach, axis=1)  # an island's id: its lowest tree
-    tree_isl = (label[:, None] == np.arange(k)) & constrained[:, None]  # (tree, island)
-    dof = jnp.any((tree.T > 0)[:, None, :] & tree_isl[:, :, None], axis=0).astype(dtype)
-    row_isl = tuple(jnp.any(x.T[:, None, :] & tree_isl[:, :, None], axis=0).astype(dtype) for x in incid)
-    inertia = dof @ jnp.diagonal(qm)
-    scale = jnp.where(inertia > 0, 1.0 / jnp.where(inertia > 0, inertia, 1.0), 0.0)
-    return _Islands(dof, row_isl, scale)
-
-
-class _Point(typing.NamedTuple):
-    alpha: jax.Array
-    cost: jax.Array
-    d0: jax.Array
-    d1: jax.Array
-
-
-def _pick(mask, p: _Point, q: _Point) -> _Point:
-    return _Point(*(jnp.where(mask, b, a) for a, b in zip(p, q, strict=True)))
-
-
-def _newton_from(p: _Point) -> jax.Array:
-    return p.alpha - p.d0 / p.d1
-
-
-class _Line(typing.NamedTuple):
-    """The line cost ``cost(a + alpha v) - cost(a)`` of every island, ready to evaluate."""
-
-    isl: _Islands
-    gauss: tuple[jax.Array, jax.Array]  # (k,) linear and quadratic coefficients
-    rows: Rows
-    res: tuple[jax.Array, ...]  # J a - aref, per group
-    js: tuple[jax.Array, ...]  # J v, per group
-
-    def eval(self, alpha: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """Each island's cost change, slope and curvature at its own ``alpha`` (PrimalEval)."""
-        isl, rows = self.isl, self.rows
-        g1, g2 = self.gauss
-        cost, d0, d1 = alpha * alpha * g2 + alpha * g1, 2 * alpha * g2 + g1, 2 * g2
-        fr, lim, con, eq, *cones = zip(self.res, self.js, isl.rows, strict=True)
-        parts = [_friction(rows, *fr, alpha), _inequality(*lim, rows.lim_D, alpha),
-                 _inequality(*con, rows.dd, alpha), _equality(*eq, rows.eq_D, alpha)]  # fmt: skip
-        parts += [_cone(c, *x, alpha) for c, x in zip(rows.cones, cones, strict=True)]
-        for (c, s, u), (_, _, onehot) in zip(parts, (fr, lim, con, eq, *cones), strict=True):
-            cost, d0, d1 = cost + onehot @ c, d0 + onehot @ s, d1 + onehot @ u
-        return cost, d0, jnp.where(d1 <= 0, MINVAL, d1)
-
-
-def _friction(rows: Rows, start, v, onehot, alpha):
-    """Friction-loss rows: Huber cost (quadratic within ``|x| < R f``, linear beyond)."""
-    x = start + _each(onehot, alpha) * v
-    f, dd = rows.fr_loss, rows.fr_D
-    rf = f / jnp.where(dd > 0, dd, 1.0)
-
-    def zone(y):
-        return jnp.where((-rf < y) & (y < rf), 0, jnp.where(y <= -rf, -1, 1))
-
-    def absolute(y):
-        return jnp.where(zone(y) == 0, 0.5 * dd * y * y, f * (-0.5 * rf + jnp.abs(y)))
-
-    z0, z = zone(start), zone(x)
-    dif = jnp.where(
-        (z0 == 0) & (z == 0),
-        0.5 * dd * (x - start) * (x + start),
-        jnp.where((z0 == z) & (z != 0), f * jnp.abs(x) - f * jnp.abs(start), absolute(x) - absolute(start)),
-    )
-    slope = jnp.where(z == 0, dd * x * v, f * z * v)
-    curve = jnp.where(z == 0, dd * v * v, 0.0)
-    return dif, slope, curve
-
-
-def _inequality(start, v, onehot, dd, alpha):
-    """Limit and pyramidal contact rows: ``D x^2 / 2`` while ``x < 0``."""
-    a = _each(onehot, alpha)
-    x = start + a * v
-    q0, q1, q2 = 0.5 * dd * start * start, v * dd * start, 0.5 * v * dd * v
-    cost0 = jnp.where(start < 0, q0, 0.0)
-    on = x < 0
-    return (jnp.where(on, q0 - cost0 + a * q1 + a * a * q2, -cost0),
-            jnp.where(on, 2 * a * q2 + q1, 0.0), jnp.where(on, 2 * q2, 0.0))  # fmt: skip
-
-
-def _equality(start, v, onehot, dd, alpha):
-    a = _each(onehot, alpha)
-    q1, q2 = v * dd * start, 0.5 * v * dd * v
-    return a * q1 + a * a * q2, 2 * a * q2 + q1, 2 * q2
-
-
-def _cone_zone(n, tsqr, mu):
-    """1 top, 2 bottom, 3 middle; and T."""
-    t = jnp.sqrt(jnp.maximum(tsqr, 0.0))
-    zone = jnp.where(n >= mu * t, 1, jnp.where(mu * n + t <= 0, 2, 3))
-    return jnp.where(tsqr <= 0, jnp.where(n < 0, 2, 1), zone), t
-
-
-def _cone(c, start, v, onehot, alpha):
-    """Elliptic-cone blocks (ellipticCostDif and PrimalEval's cone branch)."""
-    a = _each(onehot, alpha)
-    mu, dd = c.mu, c.dd
-    q0 = 0.5 * jnp.sum(dd * start * start, -1)
-    q1 = jnp.sum(v * dd * start, -1)
-    q2 = 0.5 * jnp.sum(v * dd * v, -1)
-    u0, v0 = start[:, 0] * mu, v[:, 0] * mu
-    u, w = start[:, 1:] * c.fric, v[:, 1:] * c.fric
-    uu, uv, vv = jnp.sum(u * u, -1), jnp.sum(u * w, -1), jnp.sum(w * w, -1)
-    dm = dd[:, 0] / (mu * mu * (1 + mu * mu))
-    zone0, t0 = _cone_zone(u0, uu, mu)
-    n = u0 + a * v0
-    tsqr = uu + a * (2 * uv + a * vv)
-    zone, t = _cone_zone(n, tsqr, mu)
-    quad = a * a * q2 + a * q1
-    tsafe = jnp.where(t > 0, t, 1.0)
-    t_delta = a * (2 * uv + a * vv) / jnp.where(t + t0 > 0, t + t0, 1.0)
-    r_delta, r0, r = a * v0 - mu * t_delta, u0 - mu * t0, n - mu * t
-    cases = [
-        ((zone0 == 2) & (zone == 2), quad),
-        ((zone0 == 3) & (zone == 3), 0.5 * dm * r_delta * (2 * r0 + r_delta)),
-        ((zone0 == 3) & (zone == 2), quad + 0.5 * dm * (mu * u0 + t0) ** 2),
-        ((zone0 == 2) & (zone == 3), quad - 0.5 * dm * (mu * n + t) ** 2),
-        ((zone0 == 1) & (zone == 2), quad + q0),
-        ((zone0 == 1) & (zone == 3), 0.5 * dm * r * r),
-        ((zone0 == 3) & (zone == 1), -0.5 * dm * r0 * r0),
-        ((zone0 == 2) & (zone == 1), -q0),
-    ]
-    dif = jnp.zeros_like(q0)
-    for mask, value in cases:
-        dif = jnp.where(mask, value, dif)
-    t1 = (uv + a * vv) / tsafe
-    t2 = vv / tsafe - (uv + a * vv) * t1 / (tsafe * tsafe)
-    g, g1 = r, v0 - mu * t1
-    slope = jnp.where(zone == 2, 2 * a * q2 + q1, jnp.where(zone == 3, dm * g * g1, 0.0))
-    curve = jnp.where(zone == 2, 2 * q2, jnp.where(zone == 3, dm * (g1 * g1 - g * mu * t2), 0.0))
-    return dif, slope, curve
-
-
-# line-search phases: which point the pending evaluation is for
-_P0, _P1, _ONESIDED, _P1NEXT, _MID, _UPD1, _UPD2, _DONE = range(8)
-
-
-class _Search(typing.NamedTuple):
-    phase: jax.Array
-    evals: jax.Array
-    req: jax.Array  # the alpha to evaluate next
-    p0: _Point
-    p1: _Point
-    p2: _Point
-    p1next: _Point
-    p2next: _Point
-    direction: jax.Array
-    pending2: jax.Array  # the p2 bracket moved too: evaluate its Newton point after p1's
-    alpha: jax.Array  # result
-    improvement: jax.Array
-
-
-def _update_bracket(p: _Point, candidates) -> tuple[_Point, jax.Array]:
-    moved = jnp.zeros(p.alpha.shape, bool)
-    for c in candidates:
-        neg = (p.d0 < 0) & (c.d0 < 0) & (p.d0 < c.d0)
-        pos = ~neg & (p.d0 > 0) & (c.d0 > 0) & (p.d0 > c.d0)
-        p, moved = _pick(neg | pos, p, c), moved | neg | pos
-    return p, moved
-
-
-def _set(st: dict, mask, **kw) -> None:
-    """Sets the fields ``kw`` of the search state ``st`` (``_Search``'s fields by name) where
-    ``mask``: points with ``_pick``, arrays with ``where``."""
-    for name, value in kw.items():
-        old = st[name]
-        st[name] = _pick(mask, old, value) if isinstance(old, _Point) else jnp.where(mask, value, old)
-
-
-def _done(st: dict, mask, p: _Point) -> None:
-    """Ends the searches of ``mask`` at the point ``p``."""
-    _set(st, mask, phase=_DONE, alpha=p.alpha, improvement=-p.cost)
-
-
-def _bracket_check(st: dict, mask, ls_iterations: int) -> None:
-    """The searches of ``mask``, with a new bracket: the midpoint next while evaluations are left,
-    else done at the bracket end of lower cost where that cost is negative (else alpha = 0)."""
-    go = mask & (st["evals"] < ls_iterations)
-    _set(st, go, phase=_MID, req=0.5 * (st["p1"].alpha + st["p2"].alpha))
-    final = mask & ~go
-    p1, p2 = st["p1"], st["p2"]
-    use1 = final & (p1.cost <= p2.cost) & (p1.cost < 0)
-    use2 = final & ~use1 & (p2.cost <= p1.cost) & (p2.cost < 0)
-    _done(st, use1, p1)
-    _done(st, use2, p2)
-    _set(st, final & ~use1 & ~use2, phase=_DONE, alpha=0.0, improvement=0.0)
-
-
-def _onesided(st: dict, mask, gtol, ls_iterations: int) -> None:
-    """The searches of ``mask``, at their new ``p1``: another one-sided Newton step while the
-    slope keeps its sign, else the bracket's far end (or done when no evaluations are left)."""
-    p1, evals = st["p1"], st["evals"]
-    go = mask & (p1.d0 * st["direction"] <= -gtol) & (evals < ls_iterations)
-    _set(st, go, p2=p1, phase=_ONESIDED, req=_newton_from(p1))
-    after = mask & ~go
-    _done(st, after & (evals >= ls_iterations), p1)  # could not bracket
-    _set(st, after & (evals < ls_iterations), p2next=p1, phase=_P1NEXT, req=_newton_from(p1))
-
-
-# One handler per phase: the search's next state after the evaluation ``q`` of a search in that
-# phase. Each reads the state at the start of the pass (``st``, its own copy), never another
-# phase's result, and ``_transition`` picks each island's by its phase. XLA:CPU gives every state
-# field its own fusion, which recomputes all it depends on; with the phases applied one after
-# another every field depended on the whole transition. Leap's solver at batch 1024, A/B in one
-# process: 57.3-59.6 -> 53.0-55.3 us/env, the same results to the bit.
-
-
-def _at_p0(st, q, gtol, ls_iterations):  # alpha = 0, then one Newton step from it
-    st.update(p0=q, phase=jnp.full_like(st["phase"], _P1), req=_newton_from(q))
-
-
-def _at_p1(st, q, gtol, ls_iterations):
-    st["p1"] = q
-    conv = (jnp.abs(q.d0) < gtol) & ((q.alpha == 0) | (q.cost < 0))
-    _done(st, conv, q)
-    _set(st, ~conv, direction=jnp.where(q.d0 < 0, 1.0, -1.0), p2=st["p0"])
-    _onesided(st, ~conv, gtol, ls_iterations)
-
-
-def _at_onesided(st, q, gtol, ls_iterations):
-    st["p1"] = q
-    conv = (jnp.abs(q.d0) < gtol) & (q.cost < 0)
-    _done(st, conv, q)
-    _onesided(st, ~conv, gtol, ls_iterations)
-
-
-def _at_p1next(st, q, gtol, ls_iterations):
-    st["p1next"] = q
-    _bracket_check(st, jnp.ones(q.alpha.shape, bool), ls_iterations)
-
-
-def _at_mid(st, q, gtol, ls_iterations):
-    """The midpoint: done at the best of the bracket ends' Newton points and the midpoint whose
-    slope is within ``gtol``; else the bracket moves to them, or the search ends at the midpoint
-    where it cannot."""
-    candidates = (st["p1next"], st["p2next"], q)
-    best, found = candidates[0], jnp.zeros(q.alpha.shape, bool)
-    for c in candidates:
-        better = (jnp.abs(c.d0) < gtol) & (~found | (c.cost < best.cost))
-        best, found = _pick(better, best, c), found | better
-    p1, moved1 = _update_bracket(st["p1"], candidates)
-    p2, moved2 = _update_bracket(st["p2"], candidates)
-    _done(st, found, best)
-    _done(st, ~found & ~moved1 & ~moved2, q)  # no bracket update possible: the midpoint
-    m = ~found & (moved1 | moved2)
-    _set(st, m, p1=p1, p2=p2, pending2=moved2)
-    _set(st, m & moved1, phase=_UPD1, req=_newton_from(p1))
-    _set(st, m & ~moved1, phase=_UPD2, req=_newton_from(p2))
-
-
-def _at_upd1(st, q, gtol, ls_iterations):
-    pending2 = st["pending2"]
-    st["p1next"] = q
-    _set(st, pending2, phase=_UPD2, req=_newton_from(st["p2"]))
-    _bracket_check(st, ~pending2, ls_iterations)
-
-
-def _at_upd2(st, q, gtol, ls_iterations):
-    st["p2next"] = q
-    _bracket_check(st, jnp.ones(q.alpha.shape, bool), ls_iterations)
-
-
-_HANDLERS = {_P0: _at_p0, _P1: _at_p1, _ONESIDED: _at_onesided, _P1NEXT: _at_p1next, _MID: _at_mid,
-             _UPD1: _at_upd1, _UPD2: _at_upd2}  # fmt: skip
-
-
-def _transition(s: _Search, q: _Point, gtol, ls_iterations: int) -> _Search:
-    """Advances every island's line search past the evaluation ``q`` (PrimalSearch's steps):
-    each phase's handler on its own copy of the state, then each island takes its phase's."""
-    ph = s.phase
-    start = dict(s._asdict(), evals=s.evals + (ph != _DONE))
-    results = []
-    for phase, handler in _HANDLERS.items():
-        st = dict(start)
-        handler(st, q, gtol, ls_iterations)
-        results.append((ph == phase, st))
-    out = {}
-    for name, kept in start.items():
-        written = [(mask, st[name]) for mask, st in results if st[name] is not kept]
-        if not written:
-            out[name] = kept
-        elif isinstance(kept, _Point):
-            out[name] = _Point(*(_by_phase([(m, v[i]) for m, v in written], kept[i]) for i in range(4)))
-        else:
-            out[name] = _by_phase(written, kept)
-    return _Search(**out)
-
-
-def _by_phase(written: list, kept: jax.Array) -> jax.Array:
-    """The value of the phase each island is in, from its handler (``kept`` where none wrote)."""
-    return jnp.select([mask for mask, _ in written], [value for _, value in written], kept)
-
-
-def line_search(line: _Line, search: jax.Array, active: jax.Array, tolerance, ls_iterations: int):
-    """Every island's step length and cost improvement along ``search`` (PrimalSearch)."""
-    isl = line.isl
-    snorm = isl.norm(search)
-    scale = jnp.where(isl.scale > 0, isl.scale, 1.0)
-    gtol = tolerance * snorm / scale
-    start = active & (snorm >= MINVAL)
-    z = jnp.zeros_like(snorm)
-    pt = _Point(z, z, z, z)
-    s = _Search(jnp.where(start, _P0, _DONE), jnp.zeros(z.shape, jnp.int32), z, pt, pt, pt, pt, pt,
-                z + 1, jnp.zeros(z.shape, bool), z, z)  # fmt: skip
-
-    def body(carry):
-        s, n = carry
-        q = _Point(s.req, *line.eval(s.req))
-        return _transition(s, q, gtol, ls_iterations), n + 1
-
-    def cond(carry):
-        s, n = carry
-        return jnp.any(s.phase != _DONE) & (n < ls_iterations + 4)
-
-    s, _ = jax.lax.while_loop(cond, body, (s, 0))
-    finished = s.phase == _DONE
-    return jnp.where(finished, s.alpha, 0.0), jnp.where(finished, s.improvement, 0.0)
 
 
 def solve(m: Model, d: Data) -> Data:
@@ -450,17 +68,25 @@ def _solve_jvp(primals, tangents):
     return out, tangent
 
 
-def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
-    """The solution ``qacc``: Newton steps until every island has stopped, at most
-    ``m.solver_iterations`` (MuJoCo's ``iterations``); under ``vmap``, until every element's
-    islands have."""
-    isl = islands(m, rows, d.qM)
+class _Iterate(typing.NamedTuple):
+    """The Newton loop's state."""
+
+    k: jax.Array  # () steps taken
+    a: jax.Array  # (nv,) qacc
+    res: tuple[jax.Array, ...]  # J a - aref, per row group
+    mgrad: jax.Array  # (nv,) H^-1 grad at a
+    stopped: jax.Array  # (ntree,) whether each island has stopped
+
+
+def _start(m: Model, d: Data, rows: Rows, isl: Islands) -> _Iterate:
+    """The start (the better of the warm start and ``qacc_smooth``), its Newton direction, and
+    which islands need no step: no island, or a duality gap and gradient, or a Newton decrement
+    and gradient, already below the tolerance (scaled)."""
     tol = m.solver_tolerance
     constrained = jnp.any(isl.dof > 0, axis=0)
     warm = d.qacc_warmstart
     a = jnp.where(primal_cost(rows, d, warm) > primal_cost(rows, d, d.qacc_smooth), d.qacc_smooth, warm)
     a = jnp.where(constrained, a, d.qacc_smooth)
-    structure = hessian_structure(m)
     res = rows.jar(a)
     # H as matrix products: unrolled sums of outer products measured slower here, even for few
     # rows (physics step at batch 1024, us/env: Go1 flat, 16 contact rows, 9.9 -> 8.6; Go1 rough,
@@ -469,60 +95,57 @@ def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
     real = isl.scale > 0
     gradient_ok = isl.scale * isl.norm(grad) < tol
     gap = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * factor.solve(m, d.qM, grad))) < tol
-    mgrad = factor.solve_structured(structure, hess, grad)
+    mgrad = factor.solve_structured(hessian_structure(m), hess, grad)
     decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
     stopped = ~real | (gap & gradient_ok) | (gradient_ok & (decrement < tol))
+    return _Iterate(0, a, res, mgrad, stopped)
 
-    def move(a, res, mgrad, stopped):
+
+def _iterate(m: Model, d: Data, rows: Rows) -> jax.Array:
+    """The solution ``qacc``: Newton steps until every island has stopped, at most
+    ``m.solver_iterations`` (MuJoCo's ``iterations``); under ``vmap``, until every element's
+    islands have."""
+    isl = islands(m, rows, d.qM)
+    tol = m.solver_tolerance
+    structure = hessian_structure(m)
+
+    def move(it: _Iterate):
         """One Newton step of every island that has not stopped: the new ``a`` and its
         residuals, whether each island moved, and its cost improvement."""
-        search = -mgrad * _each(isl.dof, (~stopped).astype(a.dtype))
-        line = _line(rows, isl, d, a, res, search)
-        alpha, improvement = line_search(line, search, ~stopped, tol * m.ls_tolerance, m.ls_iterations)
-        moved = ~stopped & (alpha != 0)
+        search = -it.mgrad * each(isl.dof, (~it.stopped).astype(it.a.dtype))
+        cost = linesearch.line(rows, isl, d, it.a, it.res, search)
+        ls_tol = tol * m.ls_tolerance
+        alpha, improvement = linesearch.line_search(cost, search, ~it.stopped, ls_tol, m.ls_iterations)
+        moved = ~it.stopped & (alpha != 0)
         alpha = jnp.where(moved, alpha, 0.0)
-        a = a + _each(isl.dof, alpha) * search
+        a = it.a + each(isl.dof, alpha) * search
         js = rows.j(search)
-        res = tuple(r + _each(o, alpha) * s for r, s, o in zip(res, js, _group_maps(isl), strict=True))
+        res = tuple(r + each(o, alpha) * s for r, s, o in zip(it.res, js, isl.row_maps(), strict=True))
         return a, res, moved, improvement
 
-    def step(carry):
+    def step(it: _Iterate) -> _Iterate:
         """A step, then the Hessian and direction at the new point and the stopping tests."""
-        k, a, res, mgrad, stopped = carry
-        a, res, moved, improvement = move(a, res, mgrad, stopped)
+        a, res, moved, improvement = move(it)
         grad, hess = gradient_hessian(rows, d, a, res, product=True)
         mgrad = factor.solve_structured(structure, hess, grad)
         improvement = isl.scale * improvement
         gradient = isl.scale * isl.norm(grad)
         decrement = jnp.maximum(0.0, 0.5 * isl.scale * isl.per(grad * mgrad))
         converged = ((improvement > 0) & (improvement < tol)) | (gradient < tol) | (decrement < tol)
-        return k + 1, a, res, mgrad, stopped | ~moved | converged
+        return _Iterate(it.k + 1, a, res, mgrad, it.stopped | ~moved | converged)
 
-    def last(carry):
+    def last(it: _Iterate) -> _Iterate:
         """The last allowed step: nothing follows it, so no Hessian after it."""
-        k, a, res, mgrad, stopped = carry
-        a, res, _, _ = move(a, res, mgrad, stopped)
-        return k + 1, a, res, mgrad, jnp.ones_like(stopped)
+        a, res, _, _ = move(it)
+        return _Iterate(it.k + 1, a, res, it.mgrad, jnp.ones_like(it.stopped))
 
     def before(steps):
-        return lambda carry: (carry[0] < steps) & ~jnp.all(carry[-1])
+        return lambda it: (it.k < steps) & ~jnp.all(it.stopped)
 
     # Leap's solve takes its 5 steps in most of a batch: 5 Hessians and factors instead of 6. The
     # last step is a loop of at most one pass, so a batch whose islands have all stopped skips it.
-    carry = (0, a, res, mgrad, stopped)
+    it = _start(m, d, rows, isl)
     if m.solver_iterations == 1:  # MJX-tuned scenes: one step needs no loop (a loop costs ~25%)
-        return last(carry)[1]
-    carry = jax.lax.while_loop(before(m.solver_iterations - 1), step, carry)
-    return jax.lax.while_loop(before(m.solver_iterations), last, carry)[1]
-
-
-def _group_maps(isl: _Islands) -> tuple[jax.Array, ...]:
-    """Per row group of ``Rows.j``, each row's island one-hot (cone blocks: per block row)."""
-    fr, lim, con, eq, *cones = isl.rows
-    return (fr, lim, con, eq, *(c[:, :, None] for c in cones))
-
-
-def _line(rows: Rows, isl: _Islands, d: Data, a, res, search) -> _Line:
-    mv = matvec(d.qM, search)
-    gauss = (isl.per(search * matvec(d.qM, a - d.qacc_smooth)), 0.5 * isl.per(search * mv))
-    return _Line(isl, gauss, rows, res, rows.j(search))
+        return last(it).a
+    it = jax.lax.while_loop(before(m.solver_iterations - 1), step, it)
+    return jax.lax.while_loop(before(m.solver_iterations), last, it).a

@@ -16,7 +16,7 @@ equality forces stay the solver's. A block update that would raise the cost is u
 MuJoCo. Afterwards ``qfrc_constraint = J^T f`` and ``qacc = qacc_smooth + M^-1 qfrc_constraint``.
 
 MuJoCo sweeps each constraint island on its own and stops an island once a sweep improves its
-cost by less than ``noslip_tolerance``, scaled by the island's inverse inertia (``newton.islands``;
+cost by less than ``noslip_tolerance``, scaled by the island's inverse inertia (``island.islands``;
 MuJoCo 4.0's scale, not the ``1 / (meaninertia nv)`` of older sources). Here the sweeps are
 a ``fori_loop`` of ``noslip_iterations``, and an island that has stopped keeps its forces
 (masked), so the result is MuJoCo's with a static trip count. The blocks of a sweep are
@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from fastrl.physics import constraint, equality, factor, newton, solver
+from fastrl.physics import constraint, equality, factor, island, solver
 from fastrl.physics.collision_driver import candidate_pairs
 from fastrl.physics.types import Data, Model
 
@@ -88,13 +88,13 @@ class _Problem(typing.NamedTuple):
     def update(self, s: _Sweep, rows: jax.Array, new: jax.Array, gain: jax.Array) -> _Sweep:
         """``s`` with the forces of ``rows`` set to ``new`` (unless their island has stopped)
         and ``gain`` (the cost decrease) credited to their island."""
-        island = self.row_island[rows[0]]
-        on = jnp.any((island > 0) & self.live)
+        onehot = self.row_island[rows[0]]
+        on = jnp.any((onehot > 0) & self.live)
         delta = jnp.where(on, new - s.force[rows], 0.0)
         return _Sweep(
             s.force.at[rows].add(delta),
             s.qacc + delta @ self.minv_jt[rows],
-            s.improvement + jnp.where(on, gain, 0.0) * island,
+            s.improvement + jnp.where(on, gain, 0.0) * onehot,
         )
 
 
@@ -195,9 +195,9 @@ def _cone(p: _Problem, dim: int):
 
 
 def _problem(m: Model, d: Data) -> _Problem:
-    """The rows, ``M^-1 J^T`` and this step's islands (``newton.islands``: each row's island)."""
+    """The rows, ``M^-1 J^T`` and this step's islands (``island.islands``: each row's island)."""
     solve = jax.vmap(lambda v: factor.solve(m, d.qM, v))
-    isl = newton.islands(m, solver.make_rows(m, d), d.qM)
+    isl = island.islands(m, solver.make_rows(m, d), d.qM)
     row_island = (((d.efc_J != 0).astype(d.qM.dtype) @ isl.dof.T) > 0).astype(d.qM.dtype)
     live = jnp.ones(isl.dof.shape[0], bool)
     return _Problem(d.efc_J, solve(d.efc_J), d.efc_aref, row_island, isl.scale, live)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from fastrl import physics
-from fastrl.physics import newton, solver
+from fastrl.physics import island, solver
 from tests.conftest import asset, random_state
 from tests.physics.test_oracle import _fastrl_trajectory, _mujoco_trajectory, _rel_err
 
@@ -111,7 +111,7 @@ def test_islands_merge_on_contact(x64):
     mj = mujoco.MjModel.from_xml_string(STACK.format(iterations=20, ls=20, cone="pyramidal"))
     m = physics.model_from_mujoco(mj, linesearch="mujoco")
     forward = jax.jit(physics.forward)
-    islands = jax.jit(lambda d: newton.islands(m, solver.make_rows(m, d), d.qM).dof)
+    islands = jax.jit(lambda d: island.islands(m, solver.make_rows(m, d), d.qM).dof)
     md = mujoco.MjData(mj)
     seen = set()
     for _ in range(150):
