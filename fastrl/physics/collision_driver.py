@@ -19,6 +19,7 @@ from fastrl.physics import collision_ccd as ccd
 from fastrl.physics import collision_convex as convex
 from fastrl.physics import collision_manifold as manifold
 from fastrl.physics import collision_primitive as prim
+from fastrl.physics.masked import masked_map as masked
 from fastrl.physics.math import cross, dot
 from fastrl.physics.types import Data, GeomType, Model
 
@@ -195,11 +196,9 @@ def gjk_slots(n: int) -> tuple[int, int]:
     return gjk, min(gjk, max(16, -(-gjk // 4)))
 
 
-def _keep(k: int, score: jax.Array, args: tuple, axes: tuple) -> tuple:
-    """The ``k`` highest-scoring pairs: (their scores, their indices, their vmapped ``args``)."""
-    score, chosen = jax.lax.top_k(score, k)
-    take = lambda a: jax.tree.map(lambda x: x[chosen], a)  # noqa: E731
-    return score, chosen, tuple(a if ax is None else take(a) for a, ax in zip(args, axes, strict=True))
+def _top(k: int, score: jax.Array) -> jax.Array:
+    """(n,) bool: the ``k`` highest of ``score`` (ties: the lower index, as ``lax.top_k``)."""
+    return jnp.zeros(score.shape, bool).at[jax.lax.top_k(score, k)[1]].set(True)
 
 
 def _overlap(m: Model, d: Data, idx: np.ndarray) -> jax.Array:
@@ -207,18 +206,6 @@ def _overlap(m: Model, d: Data, idx: np.ndarray) -> jax.Array:
     g1, g2 = m.pair_geom1[idx], m.pair_geom2[idx]
     reach = m.geom_rbound[g1] + m.geom_rbound[g2] + m.pair_margin[idx]
     return reach - jnp.linalg.norm(d.geom_xpos[g1] - d.geom_xpos[g2], axis=-1)
-
-
-def _spread(n: int, chosen: jax.Array, out: tuple) -> tuple:
-    """The contacts of the ``chosen`` pairs of a group put back in the group's layout of ``n``
-    pairs; the pairs not collided get no contact (``_FAR``, normal +z)."""
-    if chosen.size == n:
-        return out
-    full = lambda x, fill: jnp.full((n,) + x.shape[1:], fill, x.dtype).at[chosen].set(x)  # noqa: E731
-    dist, pos, normal, tangent = out
-    dist, pos, normal, tangent = full(dist, prim._FAR), full(pos, 0.0), full(normal, 0.0), full(tangent, 0.0)
-    normal = normal.at[..., 2].set(jnp.where(dist < prim._FAR, normal[..., 2], 1.0))
-    return dist, pos, normal, tangent
 
 
 def capped(m: Model, key: tuple) -> bool:
@@ -274,36 +261,34 @@ def _cull(m: Model, d: Data, key: tuple, idx: np.ndarray, fn, args: tuple, axes:
     1. bounding spheres: the pairs whose spheres (grown by the margin) overlap most are kept
        (``gjk_slots``, or MJX's ``max_geom_pairs`` if fewer); the rest, and any whose spheres do
        not overlap, get no contact (``_FAR``);
-    2. GJK's separation of each kept pair: the closest are kept, and of those, a pair at least its
-       margin apart gets no contact;
-    3. EPA and the multi-contact search for the kept pairs, only when some pair is within its
-       margin (``lax.cond``: one env skips the stage, a vmapped batch runs it if any env needs it).
+    2. GJK's separation of each kept pair whose spheres overlap: the closest are kept, and of
+       those, a pair at least its margin apart gets no contact;
+    3. EPA and the multi-contact search for the kept pairs within their margin.
+    Stages 2 and 3 run on those pairs only (``masked.masked_map``): a vmapped batch pays for the
+    pairs that reach each stage in all its envs, not for every kept pair of every env.
 
     Also returns how many pairs whose spheres overlap it dropped: left untested (stage 1), or
     found within the margin but left unsolved (stage 2)."""
     overlap = _overlap(m, d, idx)
     reached = jnp.sum(overlap >= 0)  # pairs MuJoCo's bounding test passes
     k1, k2 = _gjk_budget(m, key, idx)
-    chosen = jnp.arange(idx.size)
-    if k1 < idx.size:
-        overlap, chosen, args = _keep(k1, overlap, args, axes)
+    tested = (overlap >= 0) & _top(k1, overlap) if k1 < idx.size else overlap >= 0
     margin = args[-2]  # the shaped GJK arguments end with the margin and the smaller rbound
     verts = [a[0] if isinstance(a, tuple) else a for a in args[6:8]]  # face-clipped: hull tuples
     codes = args[8:9] if isinstance(key, Convex) else ()  # each pair's own types
-    sep = jax.vmap(ccd.separation(*key_types(key)))(*args[:6], *verts, *codes)
-    near = (overlap >= 0) & (sep < margin)
+    gjk_args = (*args[:6], *verts, *codes)
+    inf = jnp.asarray(jnp.inf, args[0].dtype)
+    sep = masked(ccd.separation(*key_types(key)), tested, gjk_args, (0,) * len(gjk_args), inf)
+    near = tested & (sep < margin)
     if k2 < k1:
-        near, closest, args = _keep(k2, jnp.where(near, -sep, -jnp.inf), args, axes)
-        near, chosen = near > -jnp.inf, chosen[closest]
+        near = near & _top(k2, jnp.where(near, -sep, -jnp.inf))
     count = candidates_per_pair(m, key, idx)
-    zeros = jnp.zeros((k2, count, 3), sep.dtype)
-    far = (jnp.full((k2, count), prim._FAR, sep.dtype), zeros, zeros.at[..., 2].set(1.0), zeros)
-    solve = lambda a: jax.vmap(fn, axes)(*a)  # noqa: E731
-    dist, pos, normal, tangent = jax.lax.cond(jnp.any(near), solve, lambda a: far, args)
-    dist = jnp.where(near[:, None], dist, prim._FAR)
+    zeros = jnp.zeros((count, 3), sep.dtype)
+    far = (jnp.full((count,), prim._FAR, sep.dtype), zeros, zeros.at[..., 2].set(1.0), zeros)
+    out = masked(fn, near, args, axes, far)
     # the overlapping pairs dropped before EPA: those GJK found apart are not dropped contacts
-    dropped = reached - jnp.sum(near) - jnp.sum((overlap >= 0) & (sep >= margin))
-    return _spread(idx.size, chosen, (dist, pos, normal, tangent)), dropped
+    dropped = reached - jnp.sum(near) - jnp.sum(tested & (sep >= margin))
+    return out, dropped
 
 
 def _window(m: Model, idx: np.ndarray) -> tuple[int, int]:
