@@ -38,10 +38,12 @@ MIN_IMP, MAX_IMP = 1e-4, 0.9999  # MuJoCo's mjMINIMP, mjMAXIMP
 # this order
 CONTACT_CONDIMS = (1, 3, 4, 6)
 MIN_NCONMAX = 8
+MAX_DEFAULT_NCONMAX = 64
 
 
 def default_nconmax(ncand: int) -> int:
-    """Contact slots for a model with ``ncand`` candidate contacts: a quarter of them, at least 8.
+    """Contact slots for a model with ``ncand`` candidate contacts: a quarter of them, at least 8
+    and at most 64.
 
     Measured with MuJoCo C (``mjData.ncon``, contacts within their margin) over 200k random-action
     steps of each Gymnasium model, episodes never cut short (so bodies also lie fallen): the
@@ -50,8 +52,16 @@ def default_nconmax(ncand: int) -> int:
     Ant's median is 1 and 99.99% of its states have at most 4. ``<size nconmax>`` in the MJCF or
     ``load_mjcf(nconmax=...)`` overrides the rule: the Humanoid asset sets 12 (the rule's 35 gave
     168 rows where 77 hold every contact it makes; the step runs 1.9x faster).
+
+    The cap: the Menagerie's full-collision scenes have hundreds to thousands of candidates (a
+    Leap hand 12,244, so 3,061 slots by the quarter rule) but few contacts at once. Over 3 x 1,500
+    MuJoCo C steps of random controls from each scene's keyframe the most were Franka Panda 60,
+    the Unitree G1 with hands 49, G1 46, the Leap hands 40, every other scene 28 or fewer (the Spot
+    with its arm, whose runs blow up, aside). Every slot costs constraint rows in every solver
+    iteration, and a contact without a slot is counted (``Data.contact_overflow``), never dropped
+    silently.
     """
-    return max(MIN_NCONMAX, -(-ncand // 4))
+    return max(MIN_NCONMAX, min(MAX_DEFAULT_NCONMAX, -(-ncand // 4)))
 
 
 def friction_dofs(m: Model) -> np.ndarray:
