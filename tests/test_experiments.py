@@ -593,3 +593,12 @@ def test_dense_factor_times_each_design_and_they_agree(tmp_path):
     designs = ("lapack", "columns", "minor", "chunked")
     assert all(row[d] > 0 for d in designs) and all(row[f"{d}_err"] < 1e-4 for d in designs), row
     assert "| 14 | 128 |" in (tmp_path / "dense_factor.md").read_text()
+
+
+def test_contact_counts_quick_counts_a_standing_quadruped(tmp_path):
+    """Go1 standing on its four feet (four candidate contacts, one per foot): MuJoCo C's most
+    contacts at once is between one and four, and fastrl's slots hold them."""
+    (row,) = _run_quick("contact_counts", tmp_path, "contact_counts.json")["rows"]
+    assert row["candidates"] == 4 and 1 <= row["most_contacts"] <= 4 <= row["slots"]
+    assert row["unstable_runs"] == 0
+    assert (tmp_path / "contact_counts.md").read_text().startswith("# Contacts at once in MuJoCo C")
